@@ -1,0 +1,1 @@
+"""SubgoalVLA policy: config, model pieces, LeRobot policy and processors."""

@@ -1,0 +1,40 @@
+# Create or reuse the project's Python 3.12 virtual environment in .venv and install the project into it.
+# Sourced by scripts/test.sh and scripts/demo.sh; safe to run again (it reinstalls only when pyproject.toml changed).
+set -euo pipefail
+REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$REPO_ROOT/.venv"
+
+find_python312() {
+    local candidates=(python3.12)
+    if command -v pyenv >/dev/null 2>&1; then
+        candidates+=("$(pyenv root)"/versions/3.12*/bin/python3.12)
+    fi
+    candidates+=("$HOME"/.pyenv/versions/3.12*/bin/python3.12 /usr/local/bin/python3.12 /usr/bin/python3.12)
+    for candidate in "${candidates[@]}"; do
+        if "$candidate" -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1; then
+            command -v "$candidate" 2>/dev/null || echo "$candidate"
+            return 0
+        fi
+    done
+    echo "setup_venv.sh: no Python 3.12 found (tried python3.12 and pyenv versions); install Python 3.12" >&2
+    return 1
+}
+
+if [ ! -x "$VENV/bin/python" ]; then
+    PYTHON312="$(find_python312)"
+    echo "Creating $VENV with $PYTHON312"
+    "$PYTHON312" -m venv "$VENV"
+fi
+if [ ! -x "$VENV/bin/uv" ]; then
+    "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check "uv>=0.5,<1"
+fi
+
+STAMP="$VENV/.installed-pyproject.sha256"
+WANT="$(sha256sum "$REPO_ROOT/pyproject.toml" | cut -d' ' -f1)"
+if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ]; then
+    echo "Installing lerobot_policy_subgoalvla and its dependencies into $VENV (first time: several minutes)"
+    VIRTUAL_ENV="$VENV" "$VENV/bin/uv" pip install --python "$VENV/bin/python" -e "$REPO_ROOT[dev]"
+    echo "$WANT" > "$STAMP"
+fi
+export PATH="$VENV/bin:$PATH"
+export VIRTUAL_ENV="$VENV"
