@@ -1,0 +1,576 @@
+"""Configuration of the SubgoalVLA policy (paper section 4, appendices B and C).
+
+One typed dataclass, :class:`SubgoalVLAConfig`, registered with LeRobot as ``--policy.type=subgoalvla``. Its
+nested dataclasses (:class:`BackboneConfig`, :class:`CrossAttentionConfig`, :class:`DiTHeadConfig`) are set on
+the command line with dotted flags (``--policy.planner.depth=4``).
+
+Presets. ``--policy.preset=tiny|small|paper`` chooses the architecture. Fields that depend on the preset
+default to ``None`` and :meth:`SubgoalVLAConfig.__post_init__` fills every ``None`` from the chosen preset,
+so an explicit flag always wins over the preset and a saved ``config.json`` holds every value (reloading it
+rebuilds exactly the same model):
+
+- ``paper``: the values of the paper (tables 5-8): LLaVA-1.5-7B backbone, DiT-B heads (768 wide, 12 deep,
+  12 heads), proprioceptive cross-attention (PCA) of 3 layers and 8 heads, features from layer k = m // 2.
+- ``small``: a real pretrained LLaVA-architecture VLM of about 0.9B parameters
+  (``llava-hf/llava-interleave-qwen-0.5b-hf``: SigLIP-so400m + Qwen1.5-0.5B) with DiT-S heads (384 x 12 x 6);
+  trains on one 24 GB GPU with the vision tower frozen.
+- ``tiny``: a randomly initialised LLaVA-architecture model built from a config (no download), tiny DiTs and
+  a one-layer PCA; trains on a CPU. The tests and the offline default use it.
+
+Where the paper is inconsistent this module follows the more specific statement and says so:
+
+- Section 5 says the DiTs have 8 attention heads, table 5 says 12 (DiT-B): ``paper`` uses table 5's 12.
+- Tables 6/7 say 8 diffusion steps, appendix B.2 says DDIM sampling with 10 steps. A DDIM sampler cannot take
+  more steps than the training schedule has timesteps (diffusers raises), so ``num_inference_steps`` defaults to
+  the 8 training timesteps; ``--policy.generator.num_train_timesteps=100
+  --policy.generator.num_inference_steps=10`` gives the other reading.
+- The paper does not give the number of actions executed per predicted chunk; ``n_action_steps = 8`` of the 15
+  predicted actions follows Diffusion Policy's habit of executing about half of the horizon before re-planning.
+- The paper gives no guidance scale beyond "s > 1" for the planner and "optional" CFG for the generator:
+  planner 1.5 (CogACT's default, the code base the paper's DiT heads follow), generator 1.0 (no CFG).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+from lerobot.configs import NormalizationMode, PreTrainedConfig
+from lerobot.optim import AdamWConfig, CosineDecayWithWarmupSchedulerConfig
+from lerobot.utils.constants import ACTION, OBS_STATE
+
+logger = logging.getLogger(__name__)
+
+# --------------------------------------------------------------------------------------------------------------
+# Batch keys of the data contract (DESIGN.md "Data contract"); the converter writes them, the env provides the
+# cameras and the state at evaluation time.
+# --------------------------------------------------------------------------------------------------------------
+STATIC_CAMERA_KEY = "observation.images.static"
+GRIPPER_CAMERA_KEY = "observation.images.gripper"
+STATE_HISTORY_KEY = "observation.state_history"
+SUBGOAL_TRACE_KEY = "observation.subgoal_trace"
+STATE_KEY = OBS_STATE
+ACTION_KEY = ACTION
+#: The command that writes every key above from CALVIN's native files.
+CONVERTER_COMMAND = "subgoalvla-convert-calvin <CALVIN_DIR> --repo-id <id>"
+
+PRESETS = ("tiny", "small", "paper")
+FEATURE_AGGREGATIONS = ("proprio_xattn", "mean", "max", "attn")
+STAGES = ("stage1", "stage2")
+TORCH_DTYPES = ("float32", "bfloat16", "float16")
+
+
+@dataclass
+class BackboneConfig:
+    """The vision-language backbone whose layer-k hidden states the heads read (paper section 4.1).
+
+    Attributes:
+        name_or_path: Hugging Face id or local directory of a LLaVA-architecture checkpoint
+            (``llava-hf/llava-1.5-7b-hf`` in the paper). ``None`` builds a randomly initialised tiny LLaVA from
+            the ``text_*``/``vision_*`` dimensions below (no download).
+        layer: k, the LLM layer whose hidden states H[k] feed the cross-attention. ``None`` means k = m // 2
+            (m = number of LLM layers), the paper's choice; it is resolved from the loaded model.
+        freeze_vision_tower: keep the vision encoder frozen (paper section 5, appendix C); its parameters are
+            then not in any optimizer group.
+        text_hidden_size: tiny LLM hidden size d (``name_or_path=None`` only; pretrained models bring their own).
+        text_num_layers: tiny LLM depth m.
+        text_num_heads: tiny LLM attention heads.
+        text_intermediate_size: tiny LLM MLP width.
+        vision_hidden_size: tiny vision-encoder width.
+        vision_num_layers: tiny vision-encoder depth.
+        vision_num_heads: tiny vision-encoder attention heads.
+        image_size: tiny vision-encoder input size (pixels, square); camera images are resized to it.
+        patch_size: tiny vision-encoder patch size (image_size must be a multiple of it).
+        max_instruction_tokens: instructions are padded/truncated to this many tokens by the preprocessor.
+        torch_dtype: dtype of the backbone weights (``float32``, ``bfloat16``, ``float16``); the heads stay
+            float32.
+    """
+
+    name_or_path: str | None = None
+    layer: int | None = None
+    freeze_vision_tower: bool = True
+    # Tiny architecture (only with name_or_path=None).
+    text_hidden_size: int | None = None
+    text_num_layers: int | None = None
+    text_num_heads: int | None = None
+    text_intermediate_size: int | None = None
+    vision_hidden_size: int | None = None
+    vision_num_layers: int | None = None
+    vision_num_heads: int | None = None
+    image_size: int | None = None
+    patch_size: int | None = None
+    # Tokenisation and precision.
+    max_instruction_tokens: int | None = None
+    torch_dtype: str | None = None
+
+    @property
+    def tiny_architecture_fields(self) -> tuple[str, ...]:
+        """Names of the fields that describe the tiny random LLaVA (None for pretrained backbones)."""
+        return (
+            "text_hidden_size",
+            "text_num_layers",
+            "text_num_heads",
+            "text_intermediate_size",
+            "vision_hidden_size",
+            "vision_num_layers",
+            "vision_num_heads",
+            "image_size",
+            "patch_size",
+        )
+
+
+@dataclass
+class CrossAttentionConfig:
+    """Proprioceptive cross-attention (PCA, paper Eq. 2): queries from the proprioception, keys/values H[k].
+
+    Its width is the backbone's hidden size d (queries are projected into the vision-language space).
+
+    Attributes:
+        num_layers: stacked pre-norm cross-attention + MLP blocks (3 in table 5).
+        num_heads: attention heads (8 in table 5); must divide the backbone hidden size.
+        mlp_ratio: MLP width as a multiple of d.
+        dropout: dropout on attention weights and MLP outputs (the paper uses dropout, rate not given).
+    """
+
+    num_layers: int | None = None
+    num_heads: int | None = None
+    mlp_ratio: float = 4.0
+    dropout: float | None = None
+
+
+@dataclass
+class DiTHeadConfig:
+    """One diffusion-transformer head: the subgoal planner or the action generator (appendix B, tables 6-8).
+
+    Attributes:
+        hidden_size: DiT width (768 for DiT-B).
+        depth: number of adaLN-zero DiT blocks (12 for DiT-B).
+        num_heads: self-attention heads (12 for DiT-B, table 5).
+        mlp_ratio: MLP width as a multiple of hidden_size.
+        num_train_timesteps: T, diffusion timesteps of the squared-cosine schedule (8, tables 6-7).
+        num_inference_steps: DDIM sampling steps (<= num_train_timesteps; see the module docstring).
+        guidance_scale: classifier-free guidance scale s (1.0 disables CFG; the paper uses s > 1 for the planner).
+            Unset: 1.5 for the planner, 1.0 for the generator (module docstring).
+        label_dropout: probability of replacing the conditioning by the learned null condition during training
+            (0.1, appendix B.1); enables CFG.
+        l2_weight: lambda of the L2 penalty on the predicted noise (0.001, appendix B.1).
+        repeated_diffusion_steps: timesteps sampled per training example ("repeated diffusion steps" 8, table 8).
+    """
+
+    hidden_size: int | None = None
+    depth: int | None = None
+    num_heads: int | None = None
+    mlp_ratio: float = 4.0
+    num_train_timesteps: int = 8
+    num_inference_steps: int = 8
+    guidance_scale: float | None = None
+    label_dropout: float = 0.1
+    l2_weight: float = 0.001
+    repeated_diffusion_steps: int = 8
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Preset values: (dataclass attribute on SubgoalVLAConfig, field) -> value. Only fields that default to None are
+# filled, and only where they are still None.
+# --------------------------------------------------------------------------------------------------------------
+_PRESET_VALUES: dict[str, dict[str, dict[str, Any]]] = {
+    "tiny": {
+        "backbone": {
+            "name_or_path": None,
+            "text_hidden_size": 32,
+            "text_num_layers": 4,
+            "text_num_heads": 4,
+            "text_intermediate_size": 64,
+            "vision_hidden_size": 32,
+            "vision_num_layers": 2,
+            "vision_num_heads": 4,
+            "image_size": 32,
+            "patch_size": 8,
+            "max_instruction_tokens": 32,
+            "torch_dtype": "float32",
+        },
+        "planner": {"hidden_size": 32, "depth": 2, "num_heads": 2, "guidance_scale": 1.5},
+        "generator": {"hidden_size": 32, "depth": 2, "num_heads": 2, "guidance_scale": 1.0},
+        "planner_attention": {"num_layers": 1, "num_heads": 2, "dropout": 0.0},
+        "generator_attention": {"num_layers": 1, "num_heads": 2, "dropout": 0.0},
+    },
+    "small": {
+        "backbone": {
+            "name_or_path": "llava-hf/llava-interleave-qwen-0.5b-hf",
+            "max_instruction_tokens": 64,
+            "torch_dtype": "bfloat16",
+        },
+        "planner": {"hidden_size": 384, "depth": 12, "num_heads": 6, "guidance_scale": 1.5},
+        "generator": {"hidden_size": 384, "depth": 12, "num_heads": 6, "guidance_scale": 1.0},
+        "planner_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
+        "generator_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
+    },
+    "paper": {
+        "backbone": {
+            "name_or_path": "llava-hf/llava-1.5-7b-hf",
+            "max_instruction_tokens": 64,
+            "torch_dtype": "bfloat16",
+        },
+        "planner": {"hidden_size": 768, "depth": 12, "num_heads": 12, "guidance_scale": 1.5},
+        "generator": {"hidden_size": 768, "depth": 12, "num_heads": 12, "guidance_scale": 1.0},
+        "planner_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
+        "generator_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
+    },
+}
+
+
+def _require_positive(name: str, value: int | float | None) -> None:
+    if value is None or value <= 0:
+        raise ValueError(f"--policy.{name} must be positive, got {value!r}")
+
+
+def _require_choice(name: str, value: str, allowed: tuple[str, ...]) -> None:
+    if value not in allowed:
+        raise ValueError(f"--policy.{name}={value!r} is not valid; allowed values: {', '.join(allowed)}")
+
+
+@PreTrainedConfig.register_subclass("subgoalvla")
+@dataclass
+class SubgoalVLAConfig(PreTrainedConfig):
+    """SubgoalVLA: VLM backbone -> proprioceptive cross-attention -> DiT planner -> DiT action generator.
+
+    Attributes:
+        preset: architecture preset, ``tiny`` | ``small`` | ``paper`` (module docstring); explicit flags win.
+        backbone: the vision-language backbone (:class:`BackboneConfig`).
+        planner_attention: PCA producing the planner's conditioning f^{c,g} from the state history.
+        generator_attention: PCA producing the generator's conditioning f^{c,a} from [history, trace].
+        planner: DiT subgoal planner psi (appendix B.1).
+        generator: DiT action generator phi (appendix B.2).
+        state_history_len: h, proprioceptive states in S_t (15, tables 6-7); must match the dataset's
+            ``observation.state_history``.
+        subgoal_trace_len: M, trace steps the planner predicts (8, appendix A); 1 is the "w/o ST" ablation
+            (the first trace step only). The dataset's trace must have at least this many steps.
+        chunk_size: N, actions predicted per chunk (15, table 7).
+        n_action_steps: actions executed from each predicted chunk before predicting the next one.
+        feature_aggregation: how vision-language tokens are aggregated (table 4): ``proprio_xattn`` (PCA, the
+            method), ``mean`` / ``max`` (top-k tokens by similarity to the mean / by norm), ``attn`` (learned
+            query scores, top-k); appendix D.1.
+        aggregation_top_k: k tokens kept by the ``mean``/``max``/``attn`` aggregations.
+        use_planner: False is the "w/o SP" ablation: no planner, the generator conditions on the state history
+            and the vision-language features only.
+        stage: training stage at step 0: ``stage1`` (generator conditioned on ground-truth traces, everything
+            trained) or ``stage2`` (generator conditioned on traces sampled from the planner, backbone frozen).
+            Start a stage II run from a stage I checkpoint with ``--policy.path=<ckpt> --policy.stage=stage2``.
+        stage2_start_step: with ``stage=stage1``, the optimizer step at which the same run switches to stage II
+            (None: never). The policy counts steps in a saved buffer, so ``--resume=true`` continues in the
+            right stage.
+        optimizer_lr_projector: learning rate of the vision-to-language projector (1e-5, table 8).
+        optimizer_lr_llm: learning rate of the LLM (2e-5, table 8).
+        optimizer_lr_heads: learning rate of the PCA modules and both DiT heads (1e-4, table 8); also the
+            scheduler's peak.
+        optimizer_betas: AdamW betas.
+        optimizer_eps: AdamW epsilon.
+        optimizer_weight_decay: AdamW weight decay (0.01, table 8).
+        optimizer_grad_clip_norm: gradient-norm clipping threshold (not given in the paper).
+        scheduler_warmup_ratio: linear-warmup fraction of the schedule (0.05, table 8).
+        scheduler_decay_steps: length of the cosine schedule. LeRobot shrinks warmup and decay to ``--steps``
+            when ``--steps`` is smaller, so the large default makes warmup ``scheduler_warmup_ratio * steps``
+            and the cosine reach its floor at the last step.
+        scheduler_decay_lr: the heads' learning rate at the end of the cosine (3e-6, section 5); the other groups
+            decay by the same factor.
+        normalization_mapping: normalisation per feature type. ``observation.state_history`` and
+            ``observation.subgoal_trace`` are normalised with the ``observation.state`` statistics (see the
+            processor), never with their own.
+    """
+
+    # Architecture preset ------------------------------------------------------------------------------------
+    preset: str = "tiny"
+    backbone: BackboneConfig = field(default_factory=BackboneConfig)
+    planner_attention: CrossAttentionConfig = field(default_factory=CrossAttentionConfig)
+    generator_attention: CrossAttentionConfig = field(default_factory=CrossAttentionConfig)
+    planner: DiTHeadConfig = field(default_factory=DiTHeadConfig)
+    generator: DiTHeadConfig = field(default_factory=DiTHeadConfig)
+
+    # Inputs / outputs ---------------------------------------------------------------------------------------
+    state_history_len: int = 15
+    subgoal_trace_len: int = 8
+    chunk_size: int = 15
+    n_action_steps: int = 8
+
+    # Ablations (paper tables 3 and 4) -----------------------------------------------------------------------
+    feature_aggregation: str = "proprio_xattn"
+    aggregation_top_k: int = 32
+    use_planner: bool = True
+
+    # Two-stage training (section 4.3) -----------------------------------------------------------------------
+    stage: str = "stage1"
+    stage2_start_step: int | None = None
+
+    # Training presets (appendix C, table 8) -----------------------------------------------------------------
+    optimizer_lr_projector: float = 1e-5
+    optimizer_lr_llm: float = 2e-5
+    optimizer_lr_heads: float = 1e-4
+    optimizer_betas: tuple[float, float] = (0.9, 0.999)
+    optimizer_eps: float = 1e-8
+    optimizer_weight_decay: float = 0.01
+    optimizer_grad_clip_norm: float = 1.0
+    scheduler_warmup_ratio: float = 0.05
+    scheduler_decay_steps: int = 1_000_000
+    scheduler_decay_lr: float = 3e-6
+
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.IDENTITY,
+            "STATE": NormalizationMode.MEAN_STD,
+            "ENV": NormalizationMode.IDENTITY,
+            "ACTION": NormalizationMode.MIN_MAX,
+        }
+    )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _require_choice("preset", self.preset, PRESETS)
+        self._fill_from_preset()
+        self._validate()
+
+    # Presets ------------------------------------------------------------------------------------------------
+    def _fill_from_preset(self) -> None:
+        """Fill every still-``None`` preset field from ``self.preset``; explicit values win."""
+        values = _PRESET_VALUES[self.preset]
+        pretrained = self.backbone.name_or_path is not None
+        for attribute, defaults in values.items():
+            sub = getattr(self, attribute)
+            for name, value in defaults.items():
+                # A user-chosen pretrained backbone brings its own architecture: never add tiny dimensions.
+                if attribute == "backbone" and pretrained and name in sub.tiny_architecture_fields:
+                    continue
+                if name == "name_or_path":
+                    continue  # None is meaningful (tiny); filled below only when the preset is pretrained
+                if getattr(sub, name) is None:
+                    setattr(sub, name, value)
+        if self.backbone.name_or_path is None and values["backbone"]["name_or_path"] is not None:
+            self.backbone.name_or_path = values["backbone"]["name_or_path"]
+
+    # Validation ---------------------------------------------------------------------------------------------
+    def _validate(self) -> None:
+        _require_choice("feature_aggregation", self.feature_aggregation, FEATURE_AGGREGATIONS)
+        _require_choice("stage", self.stage, STAGES)
+        _require_choice("backbone.torch_dtype", self.backbone.torch_dtype, TORCH_DTYPES)
+        for name in ("state_history_len", "subgoal_trace_len", "chunk_size", "n_action_steps"):
+            _require_positive(name, getattr(self, name))
+        _require_positive("aggregation_top_k", self.aggregation_top_k)
+        _require_positive("backbone.max_instruction_tokens", self.backbone.max_instruction_tokens)
+        if self.n_action_steps > self.chunk_size:
+            raise ValueError(
+                f"--policy.n_action_steps={self.n_action_steps} must be <= --policy.chunk_size={self.chunk_size}"
+            )
+        if self.stage2_start_step is not None:
+            if self.stage != "stage1":
+                raise ValueError("--policy.stage2_start_step only applies with --policy.stage=stage1")
+            if self.stage2_start_step < 0:
+                raise ValueError(f"--policy.stage2_start_step must be >= 0, got {self.stage2_start_step}")
+        if not self.use_planner and (self.stage == "stage2" or self.stage2_start_step is not None):
+            raise ValueError(
+                "--policy.use_planner=false (w/o SP) has no stage II: drop --policy.stage/stage2_start_step"
+            )
+        self._validate_backbone()
+        for name in ("planner", "generator"):
+            self._validate_head(name, getattr(self, name))
+        for name in ("planner_attention", "generator_attention"):
+            self._validate_attention(name, getattr(self, name))
+        for name in (
+            "optimizer_lr_projector",
+            "optimizer_lr_llm",
+            "optimizer_lr_heads",
+            "scheduler_decay_lr",
+        ):
+            _require_positive(name, getattr(self, name))
+        if not 0.0 <= self.scheduler_warmup_ratio < 1.0:
+            raise ValueError(
+                f"--policy.scheduler_warmup_ratio must be in [0, 1), got {self.scheduler_warmup_ratio}"
+            )
+        _require_positive("scheduler_decay_steps", self.scheduler_decay_steps)
+
+    def _validate_backbone(self) -> None:
+        bb = self.backbone
+        if bb.name_or_path is None:
+            for name in bb.tiny_architecture_fields:
+                _require_positive(f"backbone.{name}", getattr(bb, name))
+            if bb.image_size % bb.patch_size != 0:
+                raise ValueError(
+                    f"--policy.backbone.image_size={bb.image_size} must be a multiple of "
+                    f"--policy.backbone.patch_size={bb.patch_size}"
+                )
+            for prefix in ("text", "vision"):
+                hidden, heads = getattr(bb, f"{prefix}_hidden_size"), getattr(bb, f"{prefix}_num_heads")
+                if hidden % heads != 0:
+                    raise ValueError(
+                        f"--policy.backbone.{prefix}_hidden_size={hidden} must be divisible by "
+                        f"--policy.backbone.{prefix}_num_heads={heads}"
+                    )
+            if bb.layer is not None and not 1 <= bb.layer <= bb.text_num_layers:
+                raise ValueError(
+                    f"--policy.backbone.layer={bb.layer} must be in [1, {bb.text_num_layers}] "
+                    f"(the tiny LLM has {bb.text_num_layers} layers); leave it unset for m // 2"
+                )
+        else:
+            given = [name for name in bb.tiny_architecture_fields if getattr(bb, name) is not None]
+            if given:
+                raise ValueError(
+                    f"--policy.backbone.{given[0]} only applies to the tiny backbone (name_or_path unset); "
+                    f"{bb.name_or_path!r} brings its own architecture"
+                )
+            if bb.layer is not None and bb.layer < 1:
+                raise ValueError(f"--policy.backbone.layer must be >= 1, got {bb.layer}")
+
+    @staticmethod
+    def _validate_head(name: str, head: DiTHeadConfig) -> None:
+        for attr in ("hidden_size", "depth", "num_heads", "mlp_ratio", "num_train_timesteps"):
+            _require_positive(f"{name}.{attr}", getattr(head, attr))
+        _require_positive(f"{name}.num_inference_steps", head.num_inference_steps)
+        _require_positive(f"{name}.repeated_diffusion_steps", head.repeated_diffusion_steps)
+        if head.hidden_size % head.num_heads != 0:
+            raise ValueError(
+                f"--policy.{name}.hidden_size={head.hidden_size} must be divisible by "
+                f"--policy.{name}.num_heads={head.num_heads}"
+            )
+        if head.num_inference_steps > head.num_train_timesteps:
+            raise ValueError(
+                f"--policy.{name}.num_inference_steps={head.num_inference_steps} must be <= "
+                f"--policy.{name}.num_train_timesteps={head.num_train_timesteps} (DDIM skips timesteps, it cannot add any)"
+            )
+        if head.guidance_scale < 1.0:
+            raise ValueError(
+                f"--policy.{name}.guidance_scale must be >= 1 (1 disables CFG), got {head.guidance_scale}"
+            )
+        if not 0.0 <= head.label_dropout < 1.0:
+            raise ValueError(f"--policy.{name}.label_dropout must be in [0, 1), got {head.label_dropout}")
+        if head.l2_weight < 0:
+            raise ValueError(f"--policy.{name}.l2_weight must be >= 0, got {head.l2_weight}")
+
+    @staticmethod
+    def _validate_attention(name: str, attn: CrossAttentionConfig) -> None:
+        _require_positive(f"{name}.num_layers", attn.num_layers)
+        _require_positive(f"{name}.num_heads", attn.num_heads)
+        _require_positive(f"{name}.mlp_ratio", attn.mlp_ratio)
+        if not 0.0 <= attn.dropout < 1.0:
+            raise ValueError(f"--policy.{name}.dropout must be in [0, 1), got {attn.dropout}")
+
+    # Features -----------------------------------------------------------------------------------------------
+    def validate_features(self) -> None:
+        """Check the features every run needs: the two cameras, the state and the action.
+
+        The subgoal trace and the state history are only needed for training; they are checked against the
+        dataset by :meth:`validate_dataset_features` (the env provides state + cameras only, and the policy
+        builds the history itself at inference).
+        """
+        inputs = self.input_features or {}
+        for key in (STATE_KEY, STATIC_CAMERA_KEY, GRIPPER_CAMERA_KEY):
+            if key not in inputs:
+                raise ValueError(self.missing_feature_message(key))
+        state_dim = inputs[STATE_KEY].shape[-1]
+        for key, length in ((STATE_HISTORY_KEY, self.state_history_len), (SUBGOAL_TRACE_KEY, None)):
+            if key in inputs:
+                self._check_sequence_shape(key, tuple(inputs[key].shape), state_dim, length)
+        if self.action_feature is None:
+            raise ValueError(self.missing_feature_message(ACTION_KEY))
+
+    def validate_dataset_features(self, features: dict[str, dict[str, Any]]) -> None:
+        """Check a training dataset's features (``LeRobotDatasetMetadata.features``) against the data contract.
+
+        Raises:
+            ValueError: one line naming the missing/mis-shaped feature and the converter that writes it.
+        """
+        for key in (
+            STATE_KEY,
+            STATIC_CAMERA_KEY,
+            GRIPPER_CAMERA_KEY,
+            STATE_HISTORY_KEY,
+            SUBGOAL_TRACE_KEY,
+            ACTION_KEY,
+        ):
+            if key not in features:
+                raise ValueError(self.missing_feature_message(key))
+        state_dim = tuple(features[STATE_KEY]["shape"])[-1]
+        self._check_sequence_shape(
+            STATE_HISTORY_KEY, tuple(features[STATE_HISTORY_KEY]["shape"]), state_dim, self.state_history_len
+        )
+        self._check_sequence_shape(
+            SUBGOAL_TRACE_KEY, tuple(features[SUBGOAL_TRACE_KEY]["shape"]), state_dim, None
+        )
+
+    def set_dataset_feature_metadata(self, features: dict[str, dict[str, Any]]) -> None:
+        """LeRobot hook: ``make_policy`` calls it with the training dataset's features before building the policy."""
+        self.validate_dataset_features(features)
+
+    def _check_sequence_shape(
+        self, key: str, shape: tuple[int, ...], state_dim: int, length: int | None
+    ) -> None:
+        if len(shape) != 2 or shape[1] != state_dim:
+            raise ValueError(
+                f"dataset feature {key!r} has shape {shape}, expected (steps, {state_dim}); "
+                f"re-create it with `{CONVERTER_COMMAND}`"
+            )
+        if length is not None and shape[0] != length:
+            raise ValueError(
+                f"dataset feature {key!r} has {shape[0]} steps but --policy.state_history_len={length}; "
+                f"set the flag to {shape[0]} or convert with a matching history length"
+            )
+        if key == SUBGOAL_TRACE_KEY and shape[0] < self.subgoal_trace_len:
+            raise ValueError(
+                f"dataset feature {key!r} has {shape[0]} steps but --policy.subgoal_trace_len={self.subgoal_trace_len}; "
+                f"lower the flag or convert with a longer trace"
+            )
+
+    @staticmethod
+    def missing_feature_message(key: str) -> str:
+        """The one-line error for a dataset/env that lacks ``key``."""
+        return f"SubgoalVLA needs the feature {key!r}, which the dataset/env does not provide; create the dataset with `{CONVERTER_COMMAND}`"
+
+    # LeRobot contract -----------------------------------------------------------------------------------------
+    @property
+    def observation_delta_indices(self) -> None:
+        """No observation deltas: the history is precomputed (a delta would decode every camera h times)."""
+        return None
+
+    @property
+    def action_delta_indices(self) -> list[int]:
+        """The action chunk A_t = a_t .. a_{t+N-1}."""
+        return list(range(self.chunk_size))
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None
+
+    def get_optimizer_preset(self) -> AdamWConfig:
+        """AdamW; per-group learning rates come from ``SubgoalVLAPolicy.get_optim_params`` (plugin guide 2.7)."""
+        return AdamWConfig(
+            lr=self.optimizer_lr_heads,
+            betas=self.optimizer_betas,
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+            grad_clip_norm=self.optimizer_grad_clip_norm,
+        )
+
+    def get_scheduler_preset(self) -> CosineDecayWithWarmupSchedulerConfig:
+        """Linear warmup over ``scheduler_warmup_ratio`` of the schedule, then cosine decay (appendix C)."""
+        return CosineDecayWithWarmupSchedulerConfig(
+            num_warmup_steps=int(self.scheduler_warmup_ratio * self.scheduler_decay_steps),
+            num_decay_steps=self.scheduler_decay_steps,
+            peak_lr=self.optimizer_lr_heads,
+            decay_lr=self.scheduler_decay_lr,
+        )
+
+    def stage_at(self, step: int) -> str:
+        """The training stage in force at optimizer step ``step`` (0-based count of finished updates)."""
+        if self.stage2_start_step is not None and step >= self.stage2_start_step:
+            return "stage2"
+        return self.stage
+
+    def preset_fields(self) -> list[str]:
+        """Dotted names of the fields the preset fills (for docs and tests)."""
+        return [f"{attr}.{name}" for attr, values in _PRESET_VALUES[self.preset].items() for name in values]
+
+
+__all__ = [
+    "BackboneConfig",
+    "CrossAttentionConfig",
+    "DiTHeadConfig",
+    "SubgoalVLAConfig",
+]
