@@ -1,0 +1,1 @@
+"""Test helpers shared by several test packages (importable as ``helpers`` from any test module)."""
