@@ -1,0 +1,116 @@
+"""Scene layout measured from the table body: surfaces, cabinet shelf, drawer, obstacles (spec 3.2-3.3).
+
+The expert and the start-state sampler must work in the procedural scene and in CALVIN's scenes A-D, whose
+fixtures sit at different x positions (spec 3.2 table). Instead of per-scene constants, everything is read
+from the loaded table (link bounding boxes, joint limits, downward rays), once per sim.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from lerobot_subgoalvla.envs.calvin.expert_skills import Motion, SkillContext, ray_hits
+
+if TYPE_CHECKING:
+    from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+
+#: Block rest height on the desk (spec 3.4) and CALVIN's "table" sampling band in y (spec 3.3).
+TABLE_BLOCK_Z = 0.46
+TABLE_Y = (-0.15, -0.03)
+
+
+@dataclass(frozen=True)
+class SceneLayout:
+    """Fixed geometry of the loaded table (world metres)."""
+
+    desk_x: tuple[float, float]  # x extent of the desk top
+    desk_front_y: float  # the desk edge toward the robot
+    shelf_x: tuple[float, float]  # x extent of the cabinet shelf (plank link)
+    shelf_y: float  # y centre of the shelf
+    cabinet_front_y: float  # front (-y) edge of the shelf
+    slide_max: float  # sliding door joint upper limit
+    drawer_max: float  # drawer joint upper limit
+    drawer_x: tuple[float, float]  # x extent of the drawer
+    button_xy: tuple[float, float, float, float]  # x_lo, x_hi, y_lo, y_hi of the button
+    drawer_open_min: float = 0.15  # drawer state from which blocks fit in / can be taken out
+
+    @staticmethod
+    def from_sim(sim: CalvinSimulation) -> SceneLayout:
+        return SceneLayout.from_context(SkillContext(sim, np.random.default_rng(0), Motion(0.01, 0.005)))
+
+    @staticmethod
+    def from_context(ctx: SkillContext) -> SceneLayout:
+        client, table = ctx.sim.client, ctx.table_uid
+        base = ctx.link_aabb("base_link")
+        plank = ctx.link_aabb("plank_link")
+        drawer = ctx.link_aabb("drawer_link")
+        button = ctx.link_aabb("button_link")
+        return SceneLayout(
+            desk_x=(float(base[0, 0]), float(base[1, 0])),
+            desk_front_y=float(base[0, 1]),
+            shelf_x=(float(plank[0, 0]), float(plank[1, 0])),
+            shelf_y=float(0.5 * (plank[0, 1] + plank[1, 1])),
+            cabinet_front_y=float(plank[0, 1]),
+            slide_max=float(client.getJointInfo(table, ctx.links["slide_link"])[9]),
+            drawer_max=float(client.getJointInfo(table, ctx.links["drawer_link"])[9]),
+            drawer_x=(float(drawer[0, 0]), float(drawer[1, 0])),
+            button_xy=(float(button[0, 0]), float(button[1, 0]), float(button[0, 1]), float(button[1, 1])),
+        )
+
+    # ------------------------------------------------------------------------------------- cabinet
+    def open_shelf_interval(self, ctx: SkillContext) -> tuple[float, float]:
+        """The x interval of the shelf not covered by the sliding door (where blocks go in and out)."""
+        door = ctx.link_aabb("slide_link")
+        left = (self.shelf_x[0], min(self.shelf_x[1], float(door[0, 0])))
+        right = (max(self.shelf_x[0], float(door[1, 0])), self.shelf_x[1])
+        return left if left[1] - left[0] >= right[1] - right[0] else right
+
+    def shelf_top(self, ctx: SkillContext, x: float, y: float) -> float:
+        hit = ray_hits(ctx, np.array([[x, y, 0.6]]), np.array([[x, y, 0.3]]), "plank_link")[0]
+        return float(hit[2]) if not np.isnan(hit[2]) else float(ctx.link_aabb("plank_link")[1, 2])
+
+    def block_in_open_cabinet(self, ctx: SkillContext, block: str) -> bool:
+        """On the shelf, in the half the door leaves open (CALVIN: slider_left with door right, or vice versa)."""
+        on_shelf = (ctx.table_uid, ctx.links["plank_link"]) in ctx.block_contacts(block)
+        lo, hi = self.open_shelf_interval(ctx)
+        x = float(ctx.block_pose(block)[0][0])
+        return on_shelf and lo + 0.03 <= x <= hi - 0.03
+
+    # -------------------------------------------------------------------------------------- drawer
+    def block_in_drawer(self, ctx: SkillContext, block: str) -> bool:
+        return (ctx.table_uid, ctx.links["drawer_link"]) in ctx.block_contacts(block)
+
+    def drawer_drop_point(self, ctx: SkillContext) -> tuple[float, float]:
+        """A point of the open drawer's floor in front of the desk edge (reachable from above)."""
+        lo, hi = ctx.link_aabb("drawer_link")
+        x = ctx.rng.uniform(lo[0] + 0.09, hi[0] - 0.09)
+        inner_front = lo[1] + 0.05
+        y = ctx.rng.uniform(inner_front, min(inner_front + 0.04, self.desk_front_y - 0.06))
+        return float(x), float(y)
+
+    def above_drawer(self, ctx: SkillContext, block: str) -> bool:
+        """Block x within the drawer (with margin): pushed toward the robot it falls in (push_into_drawer)."""
+        x = float(ctx.block_pose(block)[0][0])
+        return self.drawer_x[0] + 0.07 <= x <= self.drawer_x[1] - 0.07
+
+    # ---------------------------------------------------------------------------------------- desk
+    def push_room(self, ctx: SkillContext, block: str, direction: float) -> bool:
+        """Room to push ``block`` 0.17 m along ``direction`` x: stays on the desk, misses button and blocks."""
+        pos, _ = ctx.block_pose(block)
+        start_x, end_x = pos[0] - direction * 0.09, pos[0] + direction * 0.2
+        lo, hi = min(start_x, end_x), max(start_x, end_x)
+        if lo < self.desk_x[0] + 0.05 or hi > self.desk_x[1] - 0.05:
+            return False
+        bx0, bx1, by0, by1 = self.button_xy
+        if by0 - 0.04 < pos[1] < by1 + 0.04 and hi > bx0 - 0.01 and lo < bx1 + 0.01:
+            return False
+        for other in ctx.block_uids:
+            if other == block:
+                continue
+            opos, _ = ctx.block_pose(other)
+            if abs(opos[1] - pos[1]) < 0.08 and lo - 0.05 < opos[0] < hi + 0.05:
+                return False
+        return True

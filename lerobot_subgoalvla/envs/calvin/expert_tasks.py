@@ -1,0 +1,307 @@
+"""Task scripts of the scripted CALVIN expert: one generator per task family (spec 2.2-2.3).
+
+Every script is closed loop: it reads the privileged state (block poses, joint states, handle geometry from
+ray casts) when a phase starts and yields relative actions (see ``expert_skills``). Waypoints carry small
+random offsets drawn from the run's ``np_random`` so that demonstrations vary.
+
+Geometry conventions (spec 0, 3.2): world z up, the robot at y = -0.46 facing +y; the drawer opens toward -y,
+the sliding door moves along x (state 0 = door right), the switch lever slides along (0, sin 30, cos 30).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lerobot_subgoalvla.envs.calvin.expert_skills import (
+    GRIPPER_CLOSE,
+    GRIPPER_OPEN,
+    ExpertFailureError,
+    Skill,
+    SkillContext,
+    down_euler,
+    ray_hits,
+)
+
+#: Yaw of the TCP in CALVIN's neutral pose (spec 4.2 robot_obs[5]); grasp yaws are chosen near it.
+HOME_YAW = 1.5
+#: Yaw range that keeps joint 7 away from its limits (+-2.9 rad) for the down-pointing TCP.
+YAW_RANGE = (-0.6, 3.6)
+#: Block half height (spec 3.4: 0.04 m cross-section after the 0.8 scaling).
+BLOCK_HALF = 0.02
+#: Unit vector of the switch lever's travel (spec 3.2: 0.088 m of joint = +0.044 y, +0.076 z).
+SWITCH_AXIS = np.array([0.0, 0.5, np.sqrt(3) / 2])
+
+
+# --------------------------------------------------------------------------------------------- geometry
+def grasp_yaw(rotation: np.ndarray, preferred: float = HOME_YAW, turn: float = 0.0) -> float:
+    """TCP yaw that closes the fingers across the block's short side (local y), near ``preferred``.
+
+    The fingers close along the TCP's local y = world (sin yaw, -cos yaw) for a down-pointing TCP, so the yaw
+    must equal the block's yaw modulo pi (modulo pi/2 would also do for the cube, but pi keeps one rule).
+    ``turn`` is a yaw change applied after grasping (rotate tasks): both ends must stay in ``YAW_RANGE``.
+    """
+    local_y = rotation[:, 1]
+    base = float(np.arctan2(local_y[1], local_y[0]) + np.pi / 2)
+    candidates = [base + k * np.pi for k in range(-3, 4)]
+    feasible = [
+        c for c in candidates if YAW_RANGE[0] <= min(c, c + turn) and max(c, c + turn) <= YAW_RANGE[1]
+    ]
+    if not feasible:
+        raise ExpertFailureError(f"no reachable grasp yaw for block yaw {base:.2f} and turn {turn:.2f}")
+    return min(feasible, key=lambda c: abs(c + turn / 2 - preferred))
+
+
+def handle_geometry(ctx: SkillContext, link: str, resolution: float = 0.01) -> dict[str, float]:
+    """Measure a door/drawer handle by casting rays toward +y over the link's bounding box.
+
+    The handle is the part of the link that sticks out toward the robot (-y) by more than 1.5 cm from the
+    link's face at the same height. Returns its x/z extent, its front y and the face y behind it.
+    """
+    lo, hi = ctx.link_aabb(link)
+    xs = np.arange(lo[0] + 0.005, hi[0] - 0.004, resolution)
+    zs = np.arange(lo[2] + 0.005, hi[2] - 0.004, resolution / 2)
+    grid = np.array([[x, z] for z in zs for x in xs])
+    starts = np.stack([grid[:, 0], np.full(len(grid), lo[1] - 0.3), grid[:, 1]], axis=1)
+    ends = np.stack([grid[:, 0], np.full(len(grid), hi[1] + 0.05), grid[:, 1]], axis=1)
+    front = ray_hits(ctx, starts, ends, link)[:, 1].reshape(len(zs), len(xs))  # (Z, X) hit y
+    face = np.nanmedian(front, axis=1, keepdims=True)  # (Z, 1) face y per height
+    mask = front < face - 0.015
+    if not mask.any():
+        raise ExpertFailureError(f"no handle found on table link {link!r}")
+    rows, cols = np.nonzero(mask)
+    return {
+        "x_min": float(xs[cols].min()),
+        "x_max": float(xs[cols].max()),
+        "z_min": float(zs[rows].min()),
+        "z_max": float(zs[rows].max()),
+        "front_y": float(np.nanmin(front[mask])),
+        "face_y": float(np.nanmedian(face[np.unique(rows)])),
+    }
+
+
+def top_z(ctx: SkillContext, x: float, y: float, link: str | None = None) -> float:
+    """Height of the table surface (or of ``link``) under (x, y), from a downward ray."""
+    hit = ray_hits(ctx, np.array([[x, y, 1.2]]), np.array([[x, y, 0.0]]), link)[0]
+    if np.isnan(hit[2]):
+        raise ExpertFailureError(f"no {link or 'table'} surface under ({x:.3f}, {y:.3f})")
+    return float(hit[2])
+
+
+# ---------------------------------------------------------------------------------------------- blocks
+def grasp(ctx: SkillContext, block: str, turn: float = 0.0) -> Skill:
+    """Approach ``block`` from above with the fingers open, descend, close; fails if nothing is held."""
+    pos, rot = ctx.block_pose(block)
+    yaw = grasp_yaw(rot, turn=turn) + ctx.rng.uniform(-0.05, 0.05)
+    euler = down_euler(yaw)
+    ctx.gripper = GRIPPER_OPEN
+    hover = pos + np.array([0, 0, ctx.rng.uniform(0.07, 0.11)]) + ctx.jitter(0.01) * [1, 1, 0]
+    yield from ctx.servo(hover, euler, tol=0.015, what=f"above {block}")
+    pos, rot = ctx.block_pose(block)
+    target = pos + np.array([0, 0, ctx.rng.uniform(0.0, 0.006)])
+    yield from ctx.servo(target + [0, 0, 0.03], euler, tol=0.01, what=f"pre-grasp {block}")
+    yield from ctx.servo(target, euler, speed=ctx.motion.slow_speed, tol=0.006, max_steps=40,
+                         what=f"grasp {block}", allow_timeout=True)  # fmt: skip
+    yield from ctx.set_gripper(GRIPPER_CLOSE)
+    if ctx.gripper_width() < 0.01 or not ctx.robot_holds(block):
+        raise ExpertFailureError(f"grasp of {block} missed (gripper width {ctx.gripper_width():.3f})")
+
+
+def lift(ctx: SkillContext, block: str, height: float = 0.1) -> Skill:
+    """Grasp and lift ``block`` by ``height`` (lift_*: dz 0.05 / 0.03, spec 2.3)."""
+    yield from grasp(ctx, block)
+    pos, _ = ctx.block_pose(block)
+    tcp, euler = ctx.tcp()
+    goal = tcp + np.array([0, 0, height + ctx.rng.uniform(0.0, 0.03)])
+    yield from ctx.servo(goal, euler, tol=0.01, what=f"lift {block}")
+    if not ctx.robot_holds(block):
+        raise ExpertFailureError(f"{block} slipped while lifting")
+
+
+def lift_out(ctx: SkillContext, block: str, exit_y: float) -> Skill:
+    """Grasp a block in the cabinet or drawer, raise it clear and pull it out toward the robot to ``exit_y``."""
+    yield from grasp(ctx, block)
+    tcp, euler = ctx.tcp()
+    yield from ctx.servo(tcp + [0, 0, 0.045], euler, tol=0.01, what=f"raise {block}")
+    tcp, _ = ctx.tcp()
+    yield from ctx.servo(np.array([tcp[0], min(tcp[1], exit_y), tcp[2] + 0.03]), euler, tol=0.015,
+                         what=f"carry {block} out")  # fmt: skip
+    if not ctx.robot_holds(block):
+        raise ExpertFailureError(f"{block} slipped while lifting")
+
+
+def rotate(ctx: SkillContext, block: str, direction: float) -> Skill:
+    """Grasp, lift 2-3 cm, turn the yaw by ~90 deg (+ = left / counter-clockwise), set down, release."""
+    turn = direction * ctx.rng.uniform(np.deg2rad(80), np.deg2rad(100))
+    yield from grasp(ctx, block, turn=turn)
+    tcp, euler = ctx.tcp()
+    yield from ctx.servo(tcp + [0, 0, ctx.rng.uniform(0.02, 0.03)], euler, tol=0.01, what="raise")
+    tcp, euler = ctx.tcp()
+    turned = euler + np.array([0, 0, turn])
+    yield from ctx.servo(tcp, turned, rot_tol=0.04, max_steps=90, what="turn")
+    yield from ctx.servo(tcp - [0, 0, 0.02], turned, speed=ctx.motion.slow_speed, tol=0.006, max_steps=30,
+                         what="set down", allow_timeout=True)  # fmt: skip
+    yield from release_and_retreat(ctx)
+
+
+def release_and_retreat(ctx: SkillContext, up: float = 0.08) -> Skill:
+    """Open the gripper and move straight up (place/stack: the block must end free of the robot)."""
+    yield from ctx.set_gripper(GRIPPER_OPEN)
+    tcp, euler = ctx.tcp()
+    yield from ctx.servo(tcp + [0, 0, up], euler, tol=0.015, what="retreat")
+
+
+def push(ctx: SkillContext, block: str, direction: float) -> Skill:
+    """Push ``block`` along world x by ~0.13-0.15 m with closed fingers at its side (push_*: |dx| > 0.1)."""
+    pos, rot = ctx.block_pose(block)
+    half = 0.5 * (np.abs(rot[0, 0]) * _block_length(ctx, block) + np.abs(rot[0, 1]) * 0.04)
+    ctx.gripper = GRIPPER_CLOSE
+    yaw = HOME_YAW + ctx.rng.uniform(-0.1, 0.1)  # fingers close along x: thin profile along y
+    euler = down_euler(yaw + np.pi / 2)
+    y = pos[1] + ctx.rng.uniform(-0.006, 0.006)
+    start = np.array([pos[0] - direction * (half + 0.035), y, pos[2] + 0.005])
+    yield from ctx.servo(start + [0, 0, 0.08], euler, tol=0.015, what="above push start")
+    yield from ctx.servo(start, euler, speed=ctx.motion.slow_speed, tol=0.008, what="push start")
+    distance = ctx.rng.uniform(0.14, 0.16)
+    end = start + np.array([direction * distance, 0, 0])
+    yield from ctx.servo(end, euler, speed=ctx.motion.slow_speed, tol=0.01, max_steps=60, what="push",
+                         allow_timeout=True)  # fmt: skip
+    tcp, _ = ctx.tcp()
+    yield from ctx.servo(tcp + np.array([-direction * 0.02, 0, 0.08]), euler, tol=0.02, what="retreat")
+
+
+def push_into_drawer(ctx: SkillContext, block: str) -> Skill:
+    """Push a table block toward the robot (-y) over the desk edge so that it drops into the open drawer."""
+    pos, _ = ctx.block_pose(block)
+    ctx.gripper = GRIPPER_CLOSE
+    euler = down_euler(HOME_YAW + ctx.rng.uniform(-0.1, 0.1))  # fingers close along x: thin along y
+    start = np.array([pos[0] + ctx.rng.uniform(-0.006, 0.006), pos[1] + 0.05, pos[2] + 0.005])
+    yield from ctx.servo(start + [0, 0, 0.09], euler, tol=0.015, what="above push start")
+    yield from ctx.servo(start, euler, speed=ctx.motion.slow_speed, tol=0.008, what="push start")
+    drawer_lo, _ = ctx.link_aabb("drawer_link")
+    edge_y = ctx.link_aabb("base_link")[0][1]
+    end = np.array([start[0], edge_y - 0.05, start[2]])
+    yield from ctx.servo(end, euler, speed=ctx.motion.slow_speed, tol=0.01, max_steps=60, what="push",
+                         allow_timeout=True)  # fmt: skip
+    tcp, _ = ctx.tcp()
+    yield from ctx.servo(tcp + [0, 0.03, 0.1], euler, tol=0.02, what="retreat")
+
+
+def place_on(
+    ctx: SkillContext, block: str, target_xy: np.ndarray, surface_z: float, via_y: float | None
+) -> Skill:
+    """Carry the held block to ``target_xy``, lower it onto ``surface_z`` (its bottom), release, retreat.
+
+    ``via_y`` inserts a waypoint at the target height in front of an opening (cabinet / drawer) first.
+    """
+    tcp, euler = ctx.tcp()
+    block_pos, _ = ctx.block_pose(block)
+    offset = tcp[2] - block_pos[2]  # TCP height above the block centre while held
+    drop_tcp_z = surface_z + BLOCK_HALF + offset + ctx.rng.uniform(0.008, 0.015)
+    carry_z = max(tcp[2], drop_tcp_z + 0.04)
+    if via_y is not None:
+        yield from ctx.servo(np.array([target_xy[0], via_y, drop_tcp_z + 0.02]), euler, tol=0.015,
+                             what="opening")  # fmt: skip
+    else:
+        yield from ctx.servo(np.array([target_xy[0], target_xy[1], carry_z]), euler, tol=0.015, what="above")
+    yield from ctx.servo(np.array([target_xy[0], target_xy[1], drop_tcp_z]), euler, speed=ctx.motion.slow_speed,
+                         tol=0.008, what="place")  # fmt: skip
+    if not ctx.robot_holds(block):
+        raise ExpertFailureError(f"{block} slipped while carrying")
+    yield from ctx.set_gripper(GRIPPER_OPEN)
+    tcp, euler = ctx.tcp()
+    if via_y is not None:
+        yield from ctx.servo(np.array([tcp[0], via_y, tcp[2] + 0.01]), euler, tol=0.015, what="back out")
+    yield from ctx.servo(ctx.tcp()[0] + [0, 0, 0.06], euler, tol=0.015, what="retreat")
+
+
+def _block_length(ctx: SkillContext, block: str) -> float:
+    """Long side of a block (local x) from its collision box (spec 3.4: 0.04 / 0.056 / 0.08 m)."""
+    lo, hi = np.asarray(ctx.sim.client.getAABB(ctx.block_uids[block]))
+    _, rot = ctx.block_pose(block)
+    extent = hi - lo
+    # For a flat block, the xy extent is |R| @ (L, 0.04); solve for L along the dominant axis.
+    cos, sin = abs(rot[0, 0]), abs(rot[1, 0])
+    return float((extent[0] - sin * 0.04) / cos if cos > sin else (extent[1] - cos * 0.04) / sin)
+
+
+# ------------------------------------------------------------------------------------ doors and lights
+def drawer(ctx: SkillContext, opening: bool) -> Skill:
+    """Hook the closed fingers behind the drawer handle and pull (open) or push the handle back (close)."""
+    handle = handle_geometry(ctx, "drawer_link")
+    ctx.gripper = GRIPPER_CLOSE
+    euler = down_euler(HOME_YAW + ctx.rng.uniform(-0.08, 0.08))  # fingers along x: thin along y
+    x = 0.5 * (handle["x_min"] + handle["x_max"]) + ctx.rng.uniform(-0.02, 0.02)
+    z = 0.5 * (handle["z_min"] + handle["z_max"]) + ctx.rng.uniform(-0.004, 0.004)
+    behind = 0.5 * (handle["front_y"] + handle["face_y"]) if opening else handle["front_y"] - 0.025
+    yield from ctx.servo(np.array([x, behind, z + 0.1]), euler, tol=0.01, what="above handle")
+    yield from ctx.servo(
+        np.array([x, behind, z]), euler, speed=ctx.motion.slow_speed, tol=0.008, what="handle"
+    )
+    state = ctx.joint_state("drawer_link")
+    travel = ctx.rng.uniform(0.16, 0.19) if opening else -(state + 0.03)
+    goal = np.array([x, behind - travel, z])
+    yield from ctx.servo(goal, euler, speed=ctx.motion.slow_speed, tol=0.01, max_steps=70,
+                         what="drawer", allow_timeout=True)  # fmt: skip
+    tcp, _ = ctx.tcp()
+    back = -0.03 if opening else -0.04
+    yield from ctx.servo(tcp + [0, back, 0.0], euler, tol=0.015, what="release handle", allow_timeout=True)
+    yield from ctx.servo(ctx.tcp()[0] + [0, 0, 0.1], euler, tol=0.02, what="retreat")
+
+
+def slider(ctx: SkillContext, direction: float) -> Skill:
+    """Push the sliding door's handle sideways (direction -1 = left, +1 = right) with the closed fingers."""
+    handle = handle_geometry(ctx, "slide_link")
+    ctx.gripper = GRIPPER_CLOSE
+    euler = down_euler(HOME_YAW + np.pi / 2 + ctx.rng.uniform(-0.08, 0.08))  # fingers along y: thin along x
+    z = handle["z_min"] + ctx.rng.uniform(0.02, 0.04)
+    side_x = handle["x_max"] + 0.03 if direction < 0 else handle["x_min"] - 0.03
+    y = handle["front_y"] + 0.02
+    yield from ctx.servo(np.array([side_x, y - 0.06, z + 0.03]), euler, tol=0.012, what="before handle")
+    yield from ctx.servo(
+        np.array([side_x, y, z]), euler, speed=ctx.motion.slow_speed, tol=0.008, what="handle side"
+    )
+    travel = ctx.rng.uniform(0.19, 0.22)
+    yield from ctx.servo(np.array([side_x + direction * travel, y, z]), euler, speed=ctx.motion.slow_speed,
+                         tol=0.01, max_steps=70, what="slide", allow_timeout=True)  # fmt: skip
+    tcp, _ = ctx.tcp()
+    yield from ctx.servo(tcp + [-direction * 0.015, -0.07, 0.03], euler, tol=0.015, what="retreat")
+
+
+def press_button(ctx: SkillContext) -> Skill:
+    """Press the button down past its threshold with the closed fingers and let it spring back (LED toggles)."""
+    lo, hi = ctx.link_aabb("button_link")
+    centre = 0.5 * (lo + hi) + np.append(ctx.jitter(0.008, 2), 0.0)
+    ctx.gripper = GRIPPER_CLOSE
+    euler = down_euler(HOME_YAW + ctx.rng.uniform(-0.2, 0.2))
+    top = hi[2]
+    yield from ctx.servo(np.array([centre[0], centre[1], top + 0.06]), euler, tol=0.01, what="above button")
+    yield from ctx.servo(np.array([centre[0], centre[1], top - 0.02]), euler, speed=ctx.motion.slow_speed,
+                         tol=0.006, max_steps=30, what="press", allow_timeout=True)  # fmt: skip
+    yield from ctx.hold(GRIPPER_CLOSE, 2)
+    yield from ctx.servo(
+        np.array([centre[0], centre[1], top + 0.07]), euler, tol=0.015, what="release button"
+    )
+
+
+def move_switch(ctx: SkillContext, up: bool) -> Skill:
+    """Slide the switch knob along its rail: from below-front to push it up, from above to push it down."""
+    lo, hi = ctx.link_aabb("switch_link")
+    x = 0.5 * (lo[0] + hi[0]) + ctx.rng.uniform(-0.02, 0.02)
+    ctx.gripper = GRIPPER_CLOSE
+    euler = down_euler(HOME_YAW + ctx.rng.uniform(-0.1, 0.1))
+    state = ctx.joint_state("switch_link")
+    if up:
+        start = np.array([x, lo[1] + 0.004, lo[2] + 0.008])
+        travel = 0.088 - state + ctx.rng.uniform(0.01, 0.02)
+        approach = start + np.array([0, -0.05, 0.0])
+    else:
+        start = np.array([x, hi[1] - 0.012, hi[2] + 0.012])
+        travel = -(state + ctx.rng.uniform(0.01, 0.02))
+        approach = start + np.array([0, 0, 0.06])
+    yield from ctx.servo(approach, euler, tol=0.01, what="switch approach")
+    yield from ctx.servo(start, euler, speed=ctx.motion.slow_speed, tol=0.007, what="switch start")
+    yield from ctx.servo(start + travel * SWITCH_AXIS, euler, speed=ctx.motion.slow_speed, tol=0.008,
+                         max_steps=50, what="switch", allow_timeout=True)  # fmt: skip
+    tcp, _ = ctx.tcp()
+    retreat = np.array([0, -0.06, 0.0]) if up else np.array([0, -0.03, 0.06])
+    yield from ctx.servo(tcp + retreat, euler, tol=0.015, what="retreat")
