@@ -1,0 +1,70 @@
+"""CALVIN's static and gripper RGB cameras (calvin-spec section 3.6), rendered on the CPU with TinyRenderer.
+
+| camera  | default size | vertical fov | near / far | pose |
+|---------|--------------|--------------|------------|------|
+| static  | 200 x 200    | 10 deg       | 0.01 / 10  | fixed eye/target/up of ``conf/cameras/cameras/static.yaml`` |
+| gripper | 84 x 84      | 75 deg       | 0.01 / 2   | eye = camera frame origin, target = eye + frame y axis, up = -(frame z axis) |
+
+CALVIN rendered its dataset with the EGL hardware renderer; TinyRenderer (``ER_TINY_RENDERER``) output differs
+slightly (CALVIN README FAQ). No custom lights or shadows, as CALVIN. Images are RGB uint8 (H, W, 3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet
+from pybullet_utils.bullet_client import BulletClient
+
+STATIC_EYE = (2.871459009488717, -2.166602199425597, 2.555159848480571)
+STATIC_TARGET = (-0.026242351159453392, -0.0302329882979393, 0.3920000493526459)
+STATIC_UP = (0.4041403970338857, 0.22629790978217404, 0.8862616969685161)
+STATIC_FOV, STATIC_NEAR, STATIC_FAR = 10.0, 0.01, 10.0
+GRIPPER_FOV, GRIPPER_NEAR, GRIPPER_FAR = 75.0, 0.01, 2.0
+
+
+class Cameras:
+    """Renders both cameras of one simulation.
+
+    Args:
+        client: The simulation's BulletClient.
+        static_size: Width = height of the static image (CALVIN: 200).
+        gripper_size: Width = height of the gripper image (CALVIN: 84).
+    """
+
+    def __init__(self, client: BulletClient, static_size: int = 200, gripper_size: int = 84) -> None:
+        for name, size in (("static_size", static_size), ("gripper_size", gripper_size)):
+            if not isinstance(size, int) or size < 1:
+                raise ValueError(f"{name} must be a positive int, got {size!r}")
+        self.client = client
+        self.static_size = static_size
+        self.gripper_size = gripper_size
+        self._static_view = client.computeViewMatrix(STATIC_EYE, STATIC_TARGET, STATIC_UP)
+        self._static_proj = client.computeProjectionMatrixFOV(STATIC_FOV, 1.0, STATIC_NEAR, STATIC_FAR)
+        self._gripper_proj = client.computeProjectionMatrixFOV(GRIPPER_FOV, 1.0, GRIPPER_NEAR, GRIPPER_FAR)
+
+    def _render(self, size: int, view: tuple[float, ...], proj: tuple[float, ...]) -> np.ndarray:
+        _, _, rgba, _, _ = self.client.getCameraImage(
+            size,
+            size,
+            viewMatrix=view,
+            projectionMatrix=proj,
+            renderer=pybullet.ER_TINY_RENDERER,
+            flags=pybullet.ER_NO_SEGMENTATION_MASK,
+        )
+        return np.asarray(rgba, dtype=np.uint8).reshape(size, size, 4)[:, :, :3].copy()  # (H, W, 3)
+
+    def render_static(self) -> np.ndarray:
+        """Static camera image (static_size, static_size, 3) uint8."""
+        return self._render(self.static_size, self._static_view, self._static_proj)
+
+    def render_gripper(self, position: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+        """Gripper camera image (gripper_size, gripper_size, 3) uint8 from the camera frame's world pose.
+
+        Args:
+            position: Camera frame origin (3,) in the world.
+            rotation: Camera frame rotation (3, 3); columns are the frame's x, y, z axes in the world.
+        """
+        view = self.client.computeViewMatrix(
+            position.tolist(), (position + rotation[:, 1]).tolist(), (-rotation[:, 2]).tolist()
+        )
+        return self._render(self.gripper_size, view, self._gripper_proj)
