@@ -1,0 +1,252 @@
+"""Pre/post-processing pipelines of the SubgoalVLA policy (LeRobot 0.6 processor API).
+
+Pre-processor (``policy_preprocessor``)::
+
+    rename_observations_processor -> to_batch_processor -> subgoalvla_tokenizer_processor -> device_processor
+    -> subgoalvla_pack_state_sequences -> normalizer_processor -> subgoalvla_unpack_state_sequences
+
+Post-processor (``policy_postprocessor``): ``unnormalizer_processor -> device_processor (cpu)``.
+
+Consistent proprioceptive normalisation. ``observation.state_history`` (h, p) and ``observation.subgoal_trace``
+(M, p) are sequences of ``observation.state`` vectors, so they must be normalised with the *state's* statistics:
+the policy builds the history at inference from normalised states (``StateHistoryBuffer``) and must see the same
+numbers as in training, and a predicted trace lives in the same space as the state queries. LeRobot would give each
+column its own pooled (p,) statistics instead. The pack step therefore stacks state, history and trace as rows of
+``observation.state`` (B, 1 + h + M, p) before LeRobot's own ``normalizer_processor`` (which broadcasts the (p,)
+statistics over rows) and the unpack step splits them again. The two steps hold no statistics, so the sharing holds
+by construction, also when ``lerobot-train --policy.path=...`` overrides the normaliser's statistics.
+
+Images are left in [0, 1] (``VISUAL: IDENTITY``); the model resizes and normalises them for its vision tower.
+The instruction (``task``) is tokenised here with the backbone's tokenizer, LLaVA style (image placeholders first);
+the step stores only the backbone name / tiny dimensions, so a saved pipeline rebuilds it offline for the tiny model.
+
+Dimension legend: ``B`` batch, ``p`` proprioceptive dim (15), ``h`` history length, ``M`` trace length, ``L`` tokens.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from lerobot.configs import FeatureType, PipelineFeatureType, PolicyFeature
+from lerobot.lerobot_types import EnvTransition, RobotObservation, TransitionKey
+from lerobot.processor import (
+    ObservationProcessorStep,
+    PolicyAction,
+    PolicyProcessorPipeline,
+    ProcessorStep,
+    ProcessorStepRegistry,
+    make_default_policy_processor_steps,
+    make_policy_processor_pipelines,
+)
+from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
+
+from lerobot_subgoalvla.policies.subgoalvla.backbone import (
+    TinyLlavaDims,
+    VLMInputSpec,
+    load_tokenizer,
+    tokenize_instructions,
+)
+from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
+    STATE_HISTORY_KEY,
+    STATE_KEY,
+    SUBGOAL_TRACE_KEY,
+    SubgoalVLAConfig,
+)
+
+#: Complementary-data key in which the pack step records which rows it stacked (read and removed by unpack).
+PACKED_ROWS_KEY = "subgoalvla_packed_state_rows"
+#: Proprioceptive sequences normalised with the ``observation.state`` statistics, in packing order.
+STATE_SEQUENCE_KEYS = (STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY)
+
+
+def tiny_dims_of(config: SubgoalVLAConfig) -> dict[str, int] | None:
+    """The tiny-LLaVA dimensions of ``config.backbone`` as a JSON-able dict (None for a pretrained backbone)."""
+    if config.backbone.name_or_path is not None:
+        return None
+    return {f.name: getattr(config.backbone, f.name) for f in dataclasses.fields(TinyLlavaDims)}
+
+
+@ProcessorStepRegistry.register(name="subgoalvla_tokenizer_processor")
+@dataclass
+class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
+    """Tokenise the instruction(s) in ``complementary_data["task"]`` for the VLM (LLaVA protocol).
+
+    Adds ``observation.language.tokens`` (B, L) int64 (image placeholders + instruction + padding) and
+    ``observation.language.attention_mask`` (B, L) bool.
+
+    Args:
+        name_or_path: the backbone checkpoint (its tokenizer and image-token facts); None = the tiny backbone.
+        max_length: instruction tokens kept (``BackboneConfig.max_instruction_tokens``).
+        tiny_dims: ``TinyLlavaDims`` fields of the tiny backbone (None for a pretrained one); they fix the number
+            of image placeholders.
+        task_key: complementary-data key holding the instruction(s).
+    """
+
+    name_or_path: str | None = None
+    max_length: int = 32
+    tiny_dims: dict[str, int] | None = None
+    task_key: str = "task"
+    _tokenizer: Any = field(default=None, init=False, repr=False)
+    _spec: VLMInputSpec | None = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if (self.name_or_path is None) == (self.tiny_dims is None):
+            raise ValueError("subgoalvla_tokenizer_processor needs exactly one of name_or_path / tiny_dims")
+        tiny = TinyLlavaDims(**self.tiny_dims) if self.tiny_dims is not None else None
+        self._tokenizer = load_tokenizer(self.name_or_path)
+        self._spec = VLMInputSpec.load(self.name_or_path, tiny)
+
+    @property
+    def sequence_length(self) -> int:
+        """L, the length of every tokenised instruction (BOS + image placeholders + max_length)."""
+        bos = int(self._tokenizer.bos_token_id is not None)
+        return bos + self._spec.num_image_tokens + self.max_length
+
+    def _instructions(self) -> list[str]:
+        complementary = self.transition.get(TransitionKey.COMPLEMENTARY_DATA) or {}
+        task = complementary.get(self.task_key)
+        if isinstance(task, str):
+            return [task]
+        if isinstance(task, (list, tuple)) and task and all(isinstance(t, str) for t in task):
+            return list(task)
+        raise ValueError(
+            f"SubgoalVLA needs the instruction in batch[{self.task_key!r}] (str or list[str]), got {task!r}"
+        )
+
+    def observation(self, observation: RobotObservation) -> RobotObservation:
+        input_ids, attention_mask = tokenize_instructions(
+            self._tokenizer, self._instructions(), self.max_length, self._spec
+        )
+        device = next((v.device for v in observation.values() if isinstance(v, torch.Tensor)), None)
+        observation = dict(observation)
+        observation[OBS_LANGUAGE_TOKENS] = input_ids.to(device)  # (B, L)
+        observation[OBS_LANGUAGE_ATTENTION_MASK] = attention_mask.to(
+            device=device, dtype=torch.bool
+        )  # (B, L)
+        return observation
+
+    def get_config(self) -> dict[str, Any]:
+        return {
+            "name_or_path": self.name_or_path,
+            "max_length": self.max_length,
+            "tiny_dims": self.tiny_dims,
+            "task_key": self.task_key,
+        }
+
+    def transform_features(
+        self, features: dict[PipelineFeatureType, dict[str, PolicyFeature]]
+    ) -> dict[PipelineFeatureType, dict[str, PolicyFeature]]:
+        for key in (OBS_LANGUAGE_TOKENS, OBS_LANGUAGE_ATTENTION_MASK):
+            features[PipelineFeatureType.OBSERVATION][key] = PolicyFeature(
+                type=FeatureType.LANGUAGE, shape=(self.sequence_length,)
+            )
+        return features
+
+
+@ProcessorStepRegistry.register(name="subgoalvla_pack_state_sequences")
+@dataclass
+class PackStateSequencesProcessorStep(ProcessorStep):
+    """Stack ``observation.state`` (B, p), the history (B, h, p) and the trace (B, M, p) into (B, 1+h+M, p).
+
+    Only the present sequences are stacked (the env provides the state alone); the stacked row counts are recorded
+    in the transition's complementary data for :class:`UnpackStateSequencesProcessorStep`.
+    """
+
+    def __call__(self, transition: EnvTransition) -> EnvTransition:
+        observation = transition.get(TransitionKey.OBSERVATION)
+        if not observation or STATE_KEY not in observation:
+            return transition
+        present = [key for key in STATE_SEQUENCE_KEYS if key in observation]
+        if not present:
+            return transition
+        observation = dict(observation)
+        state = observation[STATE_KEY]
+        parts = [state.unsqueeze(-2)] + [observation.pop(key) for key in present]  # (B, 1, p), (B, *, p) ...
+        rows = [[STATE_KEY, 1]] + [
+            [key, int(part.shape[-2])] for key, part in zip(present, parts[1:], strict=True)
+        ]
+        observation[STATE_KEY] = torch.cat(parts, dim=-2)  # (B, 1 + h + M, p)
+        complementary = dict(transition.get(TransitionKey.COMPLEMENTARY_DATA) or {})
+        complementary[PACKED_ROWS_KEY] = rows
+        new_transition = dict(transition)
+        new_transition[TransitionKey.OBSERVATION] = observation
+        new_transition[TransitionKey.COMPLEMENTARY_DATA] = complementary
+        return new_transition
+
+    def transform_features(
+        self, features: dict[PipelineFeatureType, dict[str, PolicyFeature]]
+    ) -> dict[PipelineFeatureType, dict[str, PolicyFeature]]:
+        return features  # packing is undone by the unpack step: the pipeline's features are unchanged
+
+
+@ProcessorStepRegistry.register(name="subgoalvla_unpack_state_sequences")
+@dataclass
+class UnpackStateSequencesProcessorStep(ProcessorStep):
+    """Split the normalised (B, 1+h+M, p) ``observation.state`` back into state, history and trace."""
+
+    def __call__(self, transition: EnvTransition) -> EnvTransition:
+        complementary = transition.get(TransitionKey.COMPLEMENTARY_DATA) or {}
+        if PACKED_ROWS_KEY not in complementary:
+            return transition
+        complementary = dict(complementary)
+        rows = complementary.pop(PACKED_ROWS_KEY)
+        observation = dict(transition[TransitionKey.OBSERVATION])
+        parts = torch.split(observation[STATE_KEY], [count for _, count in rows], dim=-2)
+        for (key, _), part in zip(rows, parts, strict=True):
+            observation[key] = (
+                part.squeeze(-2) if key == STATE_KEY else part
+            )  # (B, p) / (B, h, p) / (B, M, p)
+        new_transition = dict(transition)
+        new_transition[TransitionKey.OBSERVATION] = observation
+        new_transition[TransitionKey.COMPLEMENTARY_DATA] = complementary
+        return new_transition
+
+    def transform_features(
+        self, features: dict[PipelineFeatureType, dict[str, PolicyFeature]]
+    ) -> dict[PipelineFeatureType, dict[str, PolicyFeature]]:
+        return features
+
+
+def make_subgoalvla_pre_post_processors(
+    config: SubgoalVLAConfig,
+    dataset_stats: dict[str, dict[str, torch.Tensor]] | None = None,
+    dataset_meta: Any | None = None,
+) -> tuple[
+    PolicyProcessorPipeline[dict[str, Any], dict[str, Any]],
+    PolicyProcessorPipeline[PolicyAction, PolicyAction],
+]:
+    """Build SubgoalVLA's ``policy_preprocessor`` / ``policy_postprocessor`` (module docstring).
+
+    Args:
+        config: the policy config (features, normalisation mapping, backbone).
+        dataset_stats: the dataset's statistics; only ``observation.state``'s are used for the proprioceptive
+            sequences (through packing), the history/trace columns' own statistics never are.
+        dataset_meta: the training dataset's metadata, when LeRobot passes it: its features are checked against
+            the data contract (one-line error naming the missing feature and the converter).
+
+    Returns:
+        (preprocessor, postprocessor).
+    """
+    if dataset_meta is not None:
+        config.validate_dataset_features(dataset_meta.features)
+    steps = make_default_policy_processor_steps(config, dataset_stats)
+    tokenizer = SubgoalVLATokenizerProcessorStep(
+        name_or_path=config.backbone.name_or_path,
+        max_length=config.backbone.max_instruction_tokens,
+        tiny_dims=tiny_dims_of(config),
+    )
+    return make_policy_processor_pipelines(
+        input_steps=[
+            steps.rename_observations,
+            steps.add_batch_dim,
+            tokenizer,
+            steps.to_device,
+            PackStateSequencesProcessorStep(),
+            steps.normalize,
+            UnpackStateSequencesProcessorStep(),
+        ],
+        output_steps=[steps.unnormalize, steps.to_cpu],
+    )
