@@ -65,6 +65,22 @@ def down_euler(yaw: float) -> np.ndarray:
     return np.array([DOWN_ROLL, 0.0, float(wrap_angle(yaw))])
 
 
+def tilted_euler(yaw: float, tilt: float) -> np.ndarray:
+    """Euler (3,) of the down-pointing TCP with ``yaw``, then tilted by ``tilt`` about world x.
+
+    A positive tilt swings the fingertips toward +y (into the cabinet / drawer front) and the hand back toward
+    the robot, which keeps the hand clear of the desk edge and the slanted door.
+    """
+    c, s = np.cos(tilt), np.sin(tilt)
+    rx_tilt = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    rx_pi = np.diag([1.0, -1.0, -1.0])
+    r = rx_tilt @ rz @ rx_pi
+    pitch = -np.arcsin(np.clip(r[2, 0], -1, 1))
+    return np.array([np.arctan2(r[2, 1], r[2, 2]), pitch, np.arctan2(r[1, 0], r[0, 0])])
+
+
 def servo_action(
     tcp_pos: np.ndarray,
     tcp_euler: np.ndarray,

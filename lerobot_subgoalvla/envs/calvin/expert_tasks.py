@@ -20,6 +20,7 @@ from lerobot_subgoalvla.envs.calvin.expert_skills import (
     SkillContext,
     down_euler,
     ray_hits,
+    tilted_euler,
 )
 
 #: Yaw of the TCP in CALVIN's neutral pose (spec 4.2 robot_obs[5]); grasp yaws are chosen near it.
@@ -64,18 +65,23 @@ def handle_geometry(ctx: SkillContext, link: str, resolution: float = 0.01) -> d
     starts = np.stack([grid[:, 0], np.full(len(grid), lo[1] - 0.3), grid[:, 1]], axis=1)
     ends = np.stack([grid[:, 0], np.full(len(grid), hi[1] + 0.05), grid[:, 1]], axis=1)
     front = ray_hits(ctx, starts, ends, link)[:, 1].reshape(len(zs), len(xs))  # (Z, X) hit y
-    face = np.nanmedian(front, axis=1, keepdims=True)  # (Z, 1) face y per height
-    mask = front < face - 0.015
+    valid = np.isfinite(front).sum(axis=1) >= 3
+    front, zs = front[valid], zs[valid]
+    face = np.nanpercentile(front, 90, axis=1)  # (Z,) face y per height (the handle covers < 90 %)
+    mask = front < face[:, None] - 0.015
     if not mask.any():
         raise ExpertFailureError(f"no handle found on table link {link!r}")
     rows, cols = np.nonzero(mask)
+    z_mid = 0.5 * (zs[rows].min() + zs[rows].max())
+    slope = np.polyfit(zs, face, 1)[0]  # dy/dz of the face: 0 for the drawer, tan(30 deg) for the door
     return {
         "x_min": float(xs[cols].min()),
         "x_max": float(xs[cols].max()),
         "z_min": float(zs[rows].min()),
         "z_max": float(zs[rows].max()),
         "front_y": float(np.nanmin(front[mask])),
-        "face_y": float(np.nanmedian(face[np.unique(rows)])),
+        "face_y": float(np.interp(z_mid, zs, face)),
+        "face_slope": float(slope),
     }
 
 
@@ -229,11 +235,12 @@ def drawer(ctx: SkillContext, opening: bool) -> Skill:
     """Hook the closed fingers behind the drawer handle and pull (open) or push the handle back (close)."""
     handle = handle_geometry(ctx, "drawer_link")
     ctx.gripper = GRIPPER_CLOSE
-    euler = down_euler(HOME_YAW + ctx.rng.uniform(-0.08, 0.08))  # fingers along x: thin along y
+    # Fingers close along x (thin along y) and lean 40-50 deg toward +y so that the hand stays off the desk edge.
+    euler = tilted_euler(HOME_YAW + ctx.rng.uniform(-0.08, 0.08), ctx.rng.uniform(0.7, 0.85))
     x = 0.5 * (handle["x_min"] + handle["x_max"]) + ctx.rng.uniform(-0.02, 0.02)
     z = 0.5 * (handle["z_min"] + handle["z_max"]) + ctx.rng.uniform(-0.004, 0.004)
-    behind = 0.5 * (handle["front_y"] + handle["face_y"]) if opening else handle["front_y"] - 0.025
-    yield from ctx.servo(np.array([x, behind, z + 0.1]), euler, tol=0.01, what="above handle")
+    behind = handle["face_y"] - 0.022 if opening else handle["front_y"] - 0.025
+    yield from ctx.servo(np.array([x, behind - 0.06, z + 0.08]), euler, tol=0.01, what="above handle")
     yield from ctx.servo(
         np.array([x, behind, z]), euler, speed=ctx.motion.slow_speed, tol=0.008, what="handle"
     )
@@ -249,22 +256,29 @@ def drawer(ctx: SkillContext, opening: bool) -> Skill:
 
 
 def slider(ctx: SkillContext, direction: float) -> Skill:
-    """Push the sliding door's handle sideways (direction -1 = left, +1 = right) with the closed fingers."""
+    """Push the sliding door's handle sideways (direction -1 = left, +1 = right) with the closed fingers.
+
+    The fingers point into the slanted door (perpendicular to its face) and close along the slope, so the hand
+    is thin along x (it passes beside the handle) and stays in front of the door.
+    """
     handle = handle_geometry(ctx, "slide_link")
     ctx.gripper = GRIPPER_CLOSE
-    euler = down_euler(HOME_YAW + np.pi / 2 + ctx.rng.uniform(-0.08, 0.08))  # fingers along y: thin along x
-    z = handle["z_min"] + ctx.rng.uniform(0.02, 0.04)
-    side_x = handle["x_max"] + 0.03 if direction < 0 else handle["x_min"] - 0.03
-    y = handle["front_y"] + 0.02
-    yield from ctx.servo(np.array([side_x, y - 0.06, z + 0.03]), euler, tol=0.012, what="before handle")
-    yield from ctx.servo(
-        np.array([side_x, y, z]), euler, speed=ctx.motion.slow_speed, tol=0.008, what="handle side"
-    )
+    face_angle = float(np.arctan(handle["face_slope"]))  # 0 for a vertical face, 30 deg for CALVIN's door
+    normal = np.array([0.0, -np.cos(face_angle), np.sin(face_angle)])  # outward, toward the robot
+    euler = tilted_euler(ctx.rng.uniform(-0.08, 0.08), np.pi / 2 - face_angle + ctx.rng.uniform(-0.1, 0.05))
+    z = 0.5 * (handle["z_min"] + handle["z_max"]) + ctx.rng.uniform(-0.02, 0.0)
+    face_y = handle["face_y"] + handle["face_slope"] * (z - 0.5 * (handle["z_min"] + handle["z_max"]))
+    depth = (handle["face_y"] - handle["front_y"]) * np.cos(face_angle)  # handle protrusion along the normal
+    side_x = handle["x_max"] + 0.04 if direction < 0 else handle["x_min"] - 0.04
+    contact = np.array([side_x, face_y, z]) + normal * depth * ctx.rng.uniform(0.45, 0.6)
+    yield from ctx.servo(contact + normal * 0.07, euler, tol=0.012, rot_tol=0.08, max_steps=100,
+                         what="before handle")  # fmt: skip
+    yield from ctx.servo(contact, euler, speed=ctx.motion.slow_speed, tol=0.008, what="handle side")
     travel = ctx.rng.uniform(0.19, 0.22)
-    yield from ctx.servo(np.array([side_x + direction * travel, y, z]), euler, speed=ctx.motion.slow_speed,
+    yield from ctx.servo(contact + [direction * travel, 0, 0], euler, speed=ctx.motion.slow_speed,
                          tol=0.01, max_steps=70, what="slide", allow_timeout=True)  # fmt: skip
     tcp, _ = ctx.tcp()
-    yield from ctx.servo(tcp + [-direction * 0.015, -0.07, 0.03], euler, tol=0.015, what="retreat")
+    yield from ctx.servo(tcp + normal * 0.07 + [-direction * 0.01, 0, 0], euler, tol=0.015, what="retreat")
 
 
 def press_button(ctx: SkillContext) -> Skill:
