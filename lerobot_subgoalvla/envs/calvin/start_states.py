@@ -164,10 +164,7 @@ def _prefix(task: str, sim: CalvinSimulation, rng: np.random.Generator) -> bool:
     steps = [f"lift_{held.removeprefix('block_')}_block_table"]
     if task == "unstack_block":
         steps.append("stack_block")
-    for step in steps:
-        if not _run(ScriptedExpert(sim, step, rng), sim):
-            return False
-    return True
+    return all(_run(ScriptedExpert(sim, step, rng), sim) for step in steps)
 
 
 def _run(expert: ScriptedExpert, sim: CalvinSimulation, max_steps: int = 360) -> bool:
