@@ -1,0 +1,241 @@
+"""SubgoalVLAPolicy: LeRobot's policy interface over :class:`SubgoalVLAModel` (paper section 4).
+
+The policy is thin: the computation lives in ``model.py``; this module does the LeRobot plumbing.
+
+- Training: ``forward`` picks the stage (section 4.3) from the config and the number of optimizer steps done so far.
+  LeRobot calls ``update()`` after every optimizer step; the count lives in a saved buffer, so a resumed run or a
+  reloaded checkpoint continues in the right stage, and one ``lerobot-train`` run can switch from stage I to
+  stage II at ``stage2_start_step``.
+- Optimizer groups (appendix C, table 8): heads 1e-4, projector 1e-5, LLM 2e-5; the frozen vision tower is in no
+  group. LeRobot only uses these groups through the policy's optimizer preset (plugin guide 2.7). The heads come
+  first because LeRobot logs ``param_groups[0]``'s learning rate, which is then the scheduler's peak.
+- Inference (``select_action``): the state history the model needs is built online from the normalised states with
+  :class:`StateHistoryBuffer` (the same clamping as the dataset's ``observation.state_history``). The backbone and
+  both samplers run once per chunk; ``n_action_steps`` actions are queued. CALVIN resets the model at every
+  subtask, but ``lerobot-eval`` calls ``reset()`` once per rollout, so a change of ``batch["task"]`` (the env
+  switches the instruction at each subtask) flushes the queue and restarts the history of the envs whose
+  instruction changed (plugin guide pitfall 15).
+- Hub: loading or pushing a Hub id while ``HF_HUB_OFFLINE=1`` fails with one line naming the local alternative.
+
+Dimension legend: ``B`` batch / parallel envs, ``N`` chunk size, ``A`` action dim, ``h`` history, ``p`` proprio dim.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import torch
+from huggingface_hub import is_offline_mode
+from lerobot.policies import PreTrainedPolicy
+from torch import Tensor
+
+from lerobot_subgoalvla.datasets_conversion.subgoal_traces import StateHistoryBuffer
+from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
+    STATE_HISTORY_KEY,
+    STATE_KEY,
+    SUBGOAL_TRACE_KEY,
+    SubgoalVLAConfig,
+)
+from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
+
+logger = logging.getLogger(__name__)
+
+TASK_KEY = "task"
+
+
+def _require_online(action: str, alternative: str) -> None:
+    """Raise one clear line when ``action`` needs the Hugging Face Hub but offline mode is on."""
+    if is_offline_mode():
+        raise OSError(f"{action} needs the Hugging Face Hub but HF_HUB_OFFLINE=1 is set; {alternative}")
+
+
+class SubgoalVLAPolicy(PreTrainedPolicy):
+    """SubgoalVLA as a LeRobot policy (``--policy.type=subgoalvla``).
+
+    Args:
+        config: the policy config; ``validate_features`` is checked here (LeRobot does not call it).
+        dataset_meta: the training dataset's metadata when LeRobot builds the policy from a dataset; its
+            features are checked against the data contract (trace and history are needed for training only).
+        **kwargs: the rest of LeRobot's factory arguments (``dataset_stats``): normalisation is the processor's
+            job, so the policy does not use them.
+    """
+
+    config_class = SubgoalVLAConfig
+    name = "subgoalvla"
+
+    def __init__(self, config: SubgoalVLAConfig, dataset_meta: Any | None = None, **kwargs: Any) -> None:
+        super().__init__(config)
+        config.validate_features()
+        if dataset_meta is not None:
+            config.validate_dataset_features(dataset_meta.features)
+        self.config: SubgoalVLAConfig = config
+        self.model = SubgoalVLAModel(config)
+        # Optimizer steps done so far; saved with the weights so resume/reload keeps the training stage.
+        self.register_buffer("optimizer_steps", torch.zeros((), dtype=torch.long))
+        self._history = StateHistoryBuffer(config.state_history_len)
+        self._queue: deque[Tensor] = deque(maxlen=config.n_action_steps)
+        self.reset()
+
+    # Training -----------------------------------------------------------------------------------------------
+    @property
+    def stage(self) -> str:
+        """The training stage in force now ("stage1" or "stage2")."""
+        return self.config.stage_at(int(self.optimizer_steps))
+
+    def update(self) -> None:
+        """Called by LeRobot after every optimizer step: count it (and log the stage I -> II switch)."""
+        before = self.stage
+        self.optimizer_steps += 1
+        if self.stage != before:
+            logger.info(
+                "SubgoalVLA: switching to %s after %d optimizer steps", self.stage, int(self.optimizer_steps)
+            )
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
+        """Training loss of the current stage (eq. 1 = planner eq. 3 + generator eq. 4).
+
+        Args:
+            batch: preprocessed batch: cameras (B, 3, H, W) in [0, 1], language tokens/mask (B, L), normalised
+                ``observation.state_history`` (B, h, p) and ``observation.subgoal_trace`` (B, M', p), ``action``
+                (B, N, A) and ``action_is_pad`` (B, N).
+
+        Returns:
+            The loss and numbers to log: ``planner_loss``, ``generator_loss``, ``stage`` (1 or 2).
+        """
+        for key in (STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY):
+            if key not in batch:
+                raise ValueError(self.config.missing_feature_message(key))
+        stage = self.stage
+        losses = self.model.compute_losses(batch, stage)
+        logs = {
+            "planner_loss": losses["planner_loss"].item(),
+            "generator_loss": losses["generator_loss"].item(),
+            "stage": 1 if stage == "stage1" else 2,
+        }
+        return losses["loss"], logs
+
+    def get_optim_params(self) -> list[dict[str, Any]]:
+        """Parameter groups with the paper's learning rates (table 8); frozen parameters are left out.
+
+        Raises:
+            RuntimeError: when a trainable parameter belongs to no group (a new module must be assigned one).
+        """
+        backbone = self.model.backbone
+        cfg = self.config
+        # An unfrozen vision tower (--policy.backbone.freeze_vision_tower=false) joins the most conservative group.
+        projector = backbone.projector_parameters()
+        if not cfg.backbone.freeze_vision_tower:
+            projector = backbone.vision_parameters() + projector
+        groups = [
+            {"params": self.model.head_parameters(), "lr": cfg.optimizer_lr_heads},
+            {"params": projector, "lr": cfg.optimizer_lr_projector},
+            {"params": backbone.language_model_parameters(), "lr": cfg.optimizer_lr_llm},
+        ]
+        for group in groups:
+            group["params"] = [p for p in group["params"] if p.requires_grad]
+        grouped = {id(p) for group in groups for p in group["params"]}
+        orphans = [n for n, p in self.named_parameters() if p.requires_grad and id(p) not in grouped]
+        if orphans:
+            raise RuntimeError(f"SubgoalVLA parameters in no optimizer group: {orphans[:5]}")
+        return [group for group in groups if group["params"]]
+
+    # Inference ----------------------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the action queue, the state history and the last instruction (start of a rollout)."""
+        self._queue.clear()
+        self._history.reset()
+        self._last_tasks: list[str] | None = None
+        self._num_envs: int | None = None
+
+    def _on_new_step(self, batch: dict[str, Any], num_envs: int) -> None:
+        """Flush the queue and restart the history of envs whose ``batch["task"]`` changed (new subtask).
+
+        A different number of envs than at the previous step starts everything afresh.
+        """
+        tasks = batch.get(TASK_KEY)
+        tasks = [tasks] if isinstance(tasks, str) else (None if tasks is None else list(tasks))
+        if self._num_envs is not None and num_envs != self._num_envs:
+            self.reset()
+        elif tasks is not None and self._last_tasks is not None and tasks != self._last_tasks:
+            changed = torch.tensor([new != old for new, old in zip(tasks, self._last_tasks, strict=True)])
+            self._queue.clear()
+            self._history.reset(changed)
+        self._num_envs = num_envs
+        self._last_tasks = tasks
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs: Any) -> Tensor:
+        """A normalised action chunk (B, N, A) for the current observation.
+
+        Uses ``batch["observation.state_history"]`` when present (dataset batches, ``select_action``); otherwise
+        pushes ``observation.state`` into the policy's history buffer and uses that.
+        """
+        if STATE_HISTORY_KEY not in batch:
+            batch = {**batch, STATE_HISTORY_KEY: self._history.push(batch[STATE_KEY])}
+        actions, _ = self.model.sample_actions(batch)
+        return actions
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], **kwargs: Any) -> Tensor:
+        """The next action (B, A): pops the queue, predicting a new chunk (one backbone pass) when it is empty."""
+        state = batch[STATE_KEY]  # (B, p), normalised by the preprocessor
+        self._on_new_step(batch, state.shape[0])
+        history = self._history.push(state)  # (B, h, p), every step, so the history has no gaps
+        if not self._queue:
+            chunk = self.predict_action_chunk({**batch, STATE_HISTORY_KEY: history})  # (B, N, A)
+            self._queue.extend(chunk[:, : self.config.n_action_steps].transpose(0, 1))  # n x (B, A)
+        return self._queue.popleft()
+
+    # Hub ----------------------------------------------------------------------------------------------------
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs: Any) -> SubgoalVLAPolicy:
+        """LeRobot's ``from_pretrained``; a non-directory (a Hub id) fails fast and clearly when offline."""
+        if not Path(pretrained_name_or_path).is_dir():
+            _require_online(
+                f"loading {str(pretrained_name_or_path)!r} (not a local directory)",
+                "pass a local checkpoint directory such as outputs/train/<run>/checkpoints/last/pretrained_model",
+            )
+        return super().from_pretrained(pretrained_name_or_path, **kwargs)
+
+    def save_pretrained(
+        self,
+        save_directory: str | Path,
+        *,
+        card_kwargs: dict[str, Any] | None = None,
+        push_to_hub: bool = False,
+        repo_id: str | None = None,
+        **kwargs: Any,
+    ) -> str | None:
+        """Save config + weights; with ``card_kwargs`` (e.g. ``{"dataset_repo_id": ...}``) also a model card.
+
+        LeRobot's ``generate_model_card`` validates the card with the Hub, so the card needs a connection; it is
+        always written when pushing (``push_to_hub`` saves through this method).
+
+        ``push_to_hub=True`` then uploads the directory (``repo_id`` defaults to its name).
+        """
+        state_dict = kwargs.pop("state_dict", None)
+        super().save_pretrained(save_directory, state_dict=state_dict)
+        if card_kwargs is not None:
+            card = self.generate_model_card(
+                card_kwargs.get("dataset_repo_id", "unknown"),
+                self.config.type,
+                self.config.license,
+                self.config.tags,
+            )
+            card.save(str(Path(save_directory) / "README.md"))
+        if push_to_hub:
+            return self.push_to_hub(repo_id or Path(save_directory).name, card_kwargs=card_kwargs, **kwargs)
+        return None
+
+    def push_to_hub(self, repo_id: str, *, card_kwargs: dict[str, Any] | None = None, **kwargs: Any) -> str:
+        """Upload config, weights and a model card to ``repo_id``; fails with one line when offline."""
+        _require_online(
+            f"push_to_hub({repo_id!r})", "save locally with policy.save_pretrained(<dir>) instead"
+        )
+        return super().push_to_hub(repo_id, card_kwargs=card_kwargs or {}, **kwargs)
+
+
+__all__ = ["SubgoalVLAPolicy"]
