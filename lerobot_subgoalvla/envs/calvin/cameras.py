@@ -51,6 +51,10 @@ class Cameras:
             renderer=pybullet.ER_TINY_RENDERER,
             flags=pybullet.ER_NO_SEGMENTATION_MASK,
         )
+        if not isinstance(rgba, np.ndarray):
+            # pybullet built without numpy (the default for a source build in an isolated environment) returns
+            # a tuple of ints; bytes() converts it ~6x faster than np.asarray. See docs/calvin_simulator.md.
+            rgba = np.frombuffer(bytes(rgba), dtype=np.uint8)
         return np.asarray(rgba, dtype=np.uint8).reshape(size, size, 4)[:, :, :3].copy()  # (H, W, 3)
 
     def render_static(self) -> np.ndarray:
