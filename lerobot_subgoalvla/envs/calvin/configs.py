@@ -1,0 +1,295 @@
+"""``--env.type=calvin``: CALVIN as a LeRobot 0.6 environment (plugin guide section 3).
+
+``CalvinEnvConfig.create_envs`` returns ``{"calvin": {task_id: VectorEnv}}``. In the long-horizon mode
+(``task="lh_mtlc"``, CALVIN's evaluation protocol, calvin-spec section 4) there is one ``task_id`` per chain,
+equal to the chain id, so ``lerobot-eval --eval.n_episodes=1`` runs every chain of ``[chain_start,
+chain_stop)`` exactly once; disjoint chain ranges shard an evaluation across processes or machines. In the
+single-task mode (``task=<one of the 34 task names>``) there is one ``task_id``, the task's CALVIN id, and each
+episode starts from a random valid state drawn from the episode's seed.
+
+The vector envs are created lazily and at most ``max_parallel_tasks`` of them are alive at once
+(``_LazyVectorEnv``): ``lerobot-eval`` builds all 1000 chain envs up front but evaluates them one after the
+other, and 1000 live PyBullet clients (or process pools) would not fit in memory.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import partial
+from typing import Any
+
+import gymnasium as gym
+from gymnasium.vector.utils import batch_space
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.envs.utils import FreezeAfterEpisodeEnd
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
+
+from lerobot_subgoalvla.calvin_vocab import CALVIN_FPS, TASK_NAMES
+
+#: The long-horizon multi-task language-control protocol: one episode = one chain of five subtasks.
+LH_MTLC = "lh_mtlc"
+#: Number of chains of CALVIN's official evaluation (calvin-spec 4.1).
+NUM_EVAL_CHAINS = 1000
+SCENES: tuple[str, ...] = ("procedural", "calvin_A", "calvin_B", "calvin_C", "calvin_D")
+ACTION_MODES: tuple[str, ...] = ("relative", "absolute")
+#: CALVIN's per-subtask step budget EP_LEN (calvin-spec 4.3).
+CALVIN_EP_LEN = 360
+
+
+def _default_features() -> dict[str, PolicyFeature]:
+    return {
+        ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(7,)),
+        "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(15,)),
+        "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(24,)),
+        "pixels/static": PolicyFeature(type=FeatureType.VISUAL, shape=(200, 200, 3)),
+        "pixels/gripper": PolicyFeature(type=FeatureType.VISUAL, shape=(84, 84, 3)),
+    }
+
+
+def _default_features_map() -> dict[str, str]:
+    # Must agree with lerobot's preprocess_observation, which does the runtime renaming (pitfall 16).
+    return {
+        ACTION: ACTION,
+        "agent_pos": OBS_STATE,
+        "environment_state": OBS_ENV_STATE,
+        "pixels/static": f"{OBS_IMAGES}.static",
+        "pixels/gripper": f"{OBS_IMAGES}.gripper",
+    }
+
+
+@EnvConfig.register_subclass("calvin")
+@dataclass
+class CalvinEnvConfig(EnvConfig):
+    """CALVIN env options (``--env.<field>=...``).
+
+    Attributes:
+        task: ``"lh_mtlc"`` (chains of five subtasks, CALVIN's benchmark) or one of the 34 task names.
+        fps: Control frequency; CALVIN steps at 30 Hz (240 Hz physics, 8 substeps), so only 30 is valid.
+        scene: ``"procedural"`` (our generated desk, no files needed) or ``"calvin_A"`` ... ``"calvin_D"``
+            (CALVIN's own URDFs, read from ``assets_dir``).
+        assets_dir: A clone of calvin_env (with ``data/`` and ``conf/``); required for the ``calvin_*`` scenes.
+        chain_start: First chain id evaluated in ``lh_mtlc`` (inclusive).
+        chain_stop: Last chain id evaluated in ``lh_mtlc`` (exclusive); at most 1000.
+        episode_length: Step budget of one (sub)task; CALVIN's EP_LEN is 360 (12 s). A chain episode lasts at
+            most ``5 * episode_length`` steps.
+        static_image_size: Side of the square static-camera image (CALVIN: 200).
+        gripper_image_size: Side of the square gripper-camera image (CALVIN: 84).
+        action_mode: ``"relative"`` (CALVIN's normalised rel_actions, Box(-1, 1)) or ``"absolute"``
+            (tcp position, euler angles, gripper).
+        results_path: If set, every finished chain episode appends one JSON line (chains.py's record) here;
+            ``subgoalvla-calvin-report`` turns them into CALVIN's LH-1..5 table.
+    """
+
+    task: str | None = LH_MTLC
+    fps: int = CALVIN_FPS
+    scene: str = "procedural"
+    assets_dir: str | None = None
+    chain_start: int = 0
+    chain_stop: int = NUM_EVAL_CHAINS
+    episode_length: int = CALVIN_EP_LEN
+    static_image_size: int = 200
+    gripper_image_size: int = 84
+    action_mode: str = "relative"
+    results_path: str | None = None
+    features: dict[str, PolicyFeature] = field(default_factory=_default_features)
+    features_map: dict[str, str] = field(default_factory=_default_features_map)
+
+    def __post_init__(self) -> None:
+        self._validate()
+        self.features["pixels/static"] = PolicyFeature(
+            type=FeatureType.VISUAL, shape=(self.static_image_size, self.static_image_size, 3)
+        )
+        self.features["pixels/gripper"] = PolicyFeature(
+            type=FeatureType.VISUAL, shape=(self.gripper_image_size, self.gripper_image_size, 3)
+        )
+
+    def _validate(self) -> None:
+        if self.task != LH_MTLC and self.task not in TASK_NAMES:
+            raise ValueError(
+                f"--env.task={self.task!r} is not valid; use {LH_MTLC!r} or one of: {', '.join(TASK_NAMES)}"
+            )
+        if self.scene not in SCENES:
+            raise ValueError(f"--env.scene={self.scene!r} is not valid; use one of: {', '.join(SCENES)}")
+        if self.scene != "procedural" and self.assets_dir is None:
+            raise ValueError(
+                f"--env.scene={self.scene} needs --env.assets_dir=<a clone of calvin_env with data/ and conf/>"
+            )
+        if self.action_mode not in ACTION_MODES:
+            raise ValueError(
+                f"--env.action_mode={self.action_mode!r} is not valid; use one of: {', '.join(ACTION_MODES)}"
+            )
+        if self.fps != CALVIN_FPS:
+            raise ValueError(f"--env.fps={self.fps} is not valid; CALVIN steps at {CALVIN_FPS} Hz")
+        if not 0 <= self.chain_start < self.chain_stop <= NUM_EVAL_CHAINS:
+            raise ValueError(
+                f"--env.chain_start={self.chain_start} / --env.chain_stop={self.chain_stop} must satisfy "
+                f"0 <= chain_start < chain_stop <= {NUM_EVAL_CHAINS}"
+            )
+        for name in ("episode_length", "static_image_size", "gripper_image_size"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--env.{name}={getattr(self, name)} must be a positive integer")
+
+    @property
+    def chain_ids(self) -> range:
+        """The chain ids this config evaluates (``lh_mtlc`` only)."""
+        return range(self.chain_start, self.chain_stop)
+
+    @property
+    def gym_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of ``CalvinEnv`` shared by every task_id (the chain range is set per task_id)."""
+        return {
+            "task": self.task,
+            "scene": self.scene,
+            "assets_dir": self.assets_dir,
+            "episode_length": self.episode_length,
+            "static_size": self.static_image_size,
+            "gripper_size": self.gripper_image_size,
+            "action_mode": self.action_mode,
+            "results_path": self.results_path,
+        }
+
+    def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, Any]]:
+        """Build ``{"calvin": {task_id: vector env}}`` (plugin guide 3.1, 3.4).
+
+        Args:
+            n_envs: Sub-envs per vector env (``--eval.batch_size``).
+            use_async_envs: One forkserver worker process per sub-env (when ``n_envs > 1``).
+
+        Returns:
+            One lazily created vector env per chain id (``lh_mtlc``) or one for the task's CALVIN id.
+        """
+        if n_envs < 1:
+            raise ValueError(f"--eval.batch_size must be >= 1 for the calvin env, got {n_envs}")
+        from lerobot_subgoalvla.envs.calvin.env import CalvinEnv, official_chains  # imports the simulator
+
+        pool = _LivePool(max_alive=max(1, self.max_parallel_tasks))
+        use_async = use_async_envs and n_envs > 1
+        probe = CalvinEnv(**self.gym_kwargs)  # cheap: the simulator is created on the first reset
+        spaces = (probe.observation_space, probe.action_space, dict(probe.metadata))
+        probe.close()
+        if self.task == LH_MTLC:
+            chains = official_chains()  # once here, not in every worker process
+            groups = {
+                cid: {"chain_start": cid, "chain_stop": cid + 1, "chains": {cid: chains[cid]}}
+                for cid in self.chain_ids
+            }
+        else:
+            groups = {TASK_NAMES.index(self.task): {}}
+        envs = {}
+        for task_id, extra in groups.items():
+            fns = [partial(make_frozen_env, **self.gym_kwargs, **extra) for _ in range(n_envs)]
+            envs[task_id] = _LazyVectorEnv(fns, use_async, pool, *spaces)
+        return {self.type: envs}
+
+
+def make_frozen_env(**kwargs: Any) -> gym.Env:
+    """A ``CalvinEnv(**kwargs)`` that stops simulating once its episode ended (LeRobot's FreezeAfterEpisodeEnd).
+
+    Module-level so that ``functools.partial(make_frozen_env, ...)`` pickles with the standard pickle, as
+    forkserver workers need (plugin guide pitfall 21).
+    """
+    from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
+
+    return FreezeAfterEpisodeEnd(CalvinEnv(**kwargs))
+
+
+class _LivePool:
+    """Keeps at most ``max_alive`` lazily created vector envs alive, closing the least recently used one."""
+
+    def __init__(self, max_alive: int) -> None:
+        self.max_alive = max_alive
+        self._live: OrderedDict[int, _LazyVectorEnv] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def touch(self, env: _LazyVectorEnv) -> None:
+        """Mark ``env`` as used now; close the least recently used others beyond ``max_alive``."""
+        with self._lock:
+            self._live[id(env)] = env
+            self._live.move_to_end(id(env))
+            while len(self._live) > self.max_alive:
+                _, victim = self._live.popitem(last=False)
+                victim.release()
+
+    def forget(self, env: _LazyVectorEnv) -> None:
+        with self._lock:
+            self._live.pop(id(env), None)
+
+
+class _LazyVectorEnv:
+    """A Sync/AsyncVectorEnv built on first use and released when the pool needs room.
+
+    Released envs are rebuilt transparently on their next use, so releasing never breaks a caller; it only
+    costs the simulator's start-up. ``lerobot-eval`` evaluates task_ids one after the other (or
+    ``max_parallel_tasks`` at a time), so only the ones in use are alive. Autoreset is ``NEXT_STEP`` with
+    ``FreezeAfterEpisodeEnd`` sub-envs, as LeRobot recommends (plugin guide 3.2).
+    """
+
+    def __init__(
+        self,
+        env_fns: list[Callable[[], gym.Env]],
+        use_async: bool,
+        pool: _LivePool,
+        single_observation_space: gym.Space,
+        single_action_space: gym.Space,
+        metadata: dict[str, Any],
+    ) -> None:
+        self._env_fns = env_fns
+        self._use_async = use_async
+        self._pool = pool
+        self._env: gym.vector.VectorEnv | None = None
+        self.num_envs = len(env_fns)
+        self.single_observation_space = single_observation_space
+        self.single_action_space = single_action_space
+        self.observation_space = batch_space(single_observation_space, self.num_envs)
+        self.action_space = batch_space(single_action_space, self.num_envs)
+        self.metadata = metadata
+
+    @property
+    def unwrapped(self) -> _LazyVectorEnv:
+        return self
+
+    @property
+    def is_alive(self) -> bool:
+        """Whether the underlying vector env (and its simulators or worker processes) exists now."""
+        return self._env is not None
+
+    def _ensure(self) -> gym.vector.VectorEnv:
+        self._pool.touch(self)
+        if self._env is None:
+            mode = gym.vector.AutoresetMode.NEXT_STEP
+            if self._use_async:
+                self._env = gym.vector.AsyncVectorEnv(
+                    self._env_fns, context="forkserver", autoreset_mode=mode
+                )
+            else:
+                self._env = gym.vector.SyncVectorEnv(self._env_fns, autoreset_mode=mode)
+        return self._env
+
+    def reset(self, **kwargs: Any) -> tuple[dict, dict]:
+        return self._ensure().reset(**kwargs)
+
+    def step(self, actions: Any) -> tuple:
+        return self._ensure().step(actions)
+
+    def call(self, name: str, *args: Any, **kwargs: Any) -> tuple:
+        return self._ensure().call(name, *args, **kwargs)
+
+    def get_attr(self, name: str) -> tuple:
+        return self._ensure().get_attr(name)
+
+    def render(self) -> tuple:
+        return self._ensure().render()
+
+    def release(self) -> None:
+        """Close the underlying vector env; the next use rebuilds it."""
+        if self._env is not None:
+            self._env.close()
+            self._env = None
+
+    def close(self) -> None:
+        self._pool.forget(self)
+        self.release()
