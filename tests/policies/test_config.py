@@ -1,0 +1,174 @@
+"""SubgoalVLAConfig: presets, CLI overrides, exact save/reload, validation messages, LeRobot presets."""
+
+from __future__ import annotations
+
+import draccus
+import pytest
+import torch
+from draccus.utils import ParsingError
+from lerobot.configs import FeatureType, PolicyFeature, PreTrainedConfig
+
+from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
+    CONVERTER_COMMAND,
+    SubgoalVLAConfig,
+)
+
+
+def parse(*args: str) -> SubgoalVLAConfig:
+    """Parse CLI-style flags the way ``lerobot-train --policy.type=subgoalvla --policy.<flag>`` does.
+
+    draccus wraps the config's ValueError in a ParsingError; re-raise the ValueError the user sees below it.
+    """
+    try:
+        return draccus.parse(SubgoalVLAConfig, args=["--device=cpu", *args])
+    except ParsingError as error:
+        if isinstance(error.__cause__, ValueError):
+            raise error.__cause__ from None
+        raise
+
+
+def test_paper_preset_carries_the_papers_values() -> None:
+    cfg = parse("--preset=paper")
+    assert cfg.backbone.name_or_path == "llava-hf/llava-1.5-7b-hf"
+    assert cfg.backbone.layer is None  # k = m // 2, resolved from the loaded model
+    assert cfg.backbone.freeze_vision_tower
+    for head in (cfg.planner, cfg.generator):  # DiT-B (table 5), tables 6-8
+        assert (head.hidden_size, head.depth, head.num_heads) == (768, 12, 12)
+        assert (head.num_train_timesteps, head.label_dropout, head.l2_weight) == (8, 0.1, 0.001)
+        assert head.repeated_diffusion_steps == 8
+    for attn in (cfg.planner_attention, cfg.generator_attention):  # PCA: 3 layers, 8 heads (table 5)
+        assert (attn.num_layers, attn.num_heads) == (3, 8)
+    assert (cfg.state_history_len, cfg.subgoal_trace_len, cfg.chunk_size) == (15, 8, 15)
+    assert (cfg.optimizer_lr_projector, cfg.optimizer_lr_llm, cfg.optimizer_lr_heads) == (1e-5, 2e-5, 1e-4)
+    assert (cfg.scheduler_warmup_ratio, cfg.optimizer_weight_decay, cfg.scheduler_decay_lr) == (
+        0.05,
+        0.01,
+        3e-6,
+    )
+    assert cfg.planner.guidance_scale > 1.0  # "s > 1" (appendix B.1)
+    # a pretrained backbone brings its own architecture: no tiny dimensions are filled in
+    assert cfg.backbone.text_hidden_size is None and cfg.backbone.image_size is None
+
+
+def test_presets_differ_and_explicit_flags_win() -> None:
+    tiny, small = parse("--preset=tiny"), parse("--preset=small")
+    assert tiny.backbone.name_or_path is None and tiny.backbone.text_num_layers == 4
+    assert small.backbone.name_or_path == "llava-hf/llava-interleave-qwen-0.5b-hf"
+    assert tiny.planner.hidden_size < small.planner.hidden_size
+    cfg = parse("--preset=paper", "--planner.depth=4", "--generator_attention.num_heads=4")
+    assert cfg.planner.depth == 4 and cfg.planner.hidden_size == 768  # the flag wins, the rest is the preset
+    assert cfg.generator_attention.num_heads == 4 and cfg.generator_attention.num_layers == 3
+    custom = parse("--preset=tiny", "--backbone.name_or_path=/models/my_llava")
+    assert custom.backbone.text_hidden_size is None  # no tiny dims for a pretrained checkpoint
+
+
+def test_saved_config_reloads_exactly(tmp_path) -> None:
+    cfg = parse("--preset=tiny", "--planner.depth=3", "--stage2_start_step=7", "--n_action_steps=5")
+    cfg.input_features = {"observation.state": PolicyFeature(type=FeatureType.STATE, shape=(15,))}
+    cfg.save_pretrained(tmp_path)
+    loaded = PreTrainedConfig.from_pretrained(tmp_path)
+    assert isinstance(loaded, SubgoalVLAConfig)
+    assert loaded == cfg
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--preset=huge"], "allowed values: tiny, small, paper"),
+        (["--feature_aggregation=sum"], "allowed values: proprio_xattn, mean, max, attn"),
+        (["--stage=stage3"], "allowed values: stage1, stage2"),
+        (["--backbone.torch_dtype=int8"], "allowed values: float32, bfloat16, float16"),
+        (["--n_action_steps=16"], "must be <= --policy.chunk_size=15"),
+        (["--chunk_size=0"], "chunk_size must be positive"),
+        (["--backbone.layer=5"], "must be in [1, 4]"),
+        (["--planner.guidance_scale=0.5"], "guidance_scale must be >= 1"),
+        (["--generator.num_inference_steps=10"], "must be <= --policy.generator.num_train_timesteps=8"),
+        (["--planner.hidden_size=30", "--planner.num_heads=4"], "must be divisible by"),
+        (["--preset=paper", "--backbone.image_size=64"], "only applies to the tiny backbone"),
+        (["--stage=stage2", "--stage2_start_step=3"], "only applies with --policy.stage=stage1"),
+        (["--use_planner=false", "--stage=stage2"], "w/o SP"),
+        (["--backbone.image_size=30"], "must be a multiple of"),
+    ],
+)
+def test_bad_values_are_rejected_with_the_allowed_values(flags: list[str], message: str) -> None:
+    with pytest.raises(ValueError) as info:
+        parse(*flags)
+    assert message in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def _features(*keys: str) -> dict[str, PolicyFeature]:
+    shapes = {
+        "observation.state": (FeatureType.STATE, (15,)),
+        "observation.images.static": (FeatureType.VISUAL, (3, 32, 32)),
+        "observation.images.gripper": (FeatureType.VISUAL, (3, 16, 16)),
+        "observation.state_history": (FeatureType.STATE, (15, 15)),
+        "observation.subgoal_trace": (FeatureType.STATE, (8, 15)),
+    }
+    return {key: PolicyFeature(type=shapes[key][0], shape=shapes[key][1]) for key in keys}
+
+
+def test_validate_features_accepts_an_env_without_trace_or_history() -> None:
+    cfg = parse()
+    cfg.input_features = _features(
+        "observation.state", "observation.images.static", "observation.images.gripper"
+    )
+    cfg.output_features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(7,))}
+    cfg.validate_features()  # evaluation: the env gives cameras + state, the policy builds the history
+
+
+@pytest.mark.parametrize(
+    "missing", ["observation.state", "observation.images.static", "observation.images.gripper"]
+)
+def test_validate_features_names_the_missing_feature_and_the_converter(missing: str) -> None:
+    cfg = parse()
+    keys = ["observation.state", "observation.images.static", "observation.images.gripper"]
+    cfg.input_features = _features(*[k for k in keys if k != missing])
+    cfg.output_features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(7,))}
+    with pytest.raises(ValueError, match=missing) as info:
+        cfg.validate_features()
+    assert CONVERTER_COMMAND in str(info.value) and "\n" not in str(info.value)
+
+
+def test_dataset_features_need_trace_and_matching_history() -> None:
+    cfg = parse()
+    features = {
+        "observation.state": {"shape": (15,)},
+        "observation.images.static": {"shape": (32, 32, 3)},
+        "observation.images.gripper": {"shape": (16, 16, 3)},
+        "observation.state_history": {"shape": (15, 15)},
+        "action": {"shape": (7,)},
+    }
+    with pytest.raises(ValueError, match="observation.subgoal_trace"):
+        cfg.validate_dataset_features(features)
+    features["observation.subgoal_trace"] = {"shape": (8, 15)}
+    cfg.validate_dataset_features(features)
+    features["observation.state_history"] = {"shape": (10, 15)}
+    with pytest.raises(ValueError, match="state_history_len=15"):
+        cfg.validate_dataset_features(features)
+
+
+def test_delta_indices_and_stage_schedule() -> None:
+    cfg = parse("--stage2_start_step=5")
+    assert cfg.observation_delta_indices is None  # the history is precomputed, cameras decode once
+    assert cfg.action_delta_indices == list(range(15))
+    assert [cfg.stage_at(s) for s in (0, 4, 5, 100)] == ["stage1", "stage1", "stage2", "stage2"]
+    assert parse("--stage=stage2").stage_at(0) == "stage2"
+
+
+def test_optimizer_and_scheduler_presets_follow_table_8() -> None:
+    cfg = parse()
+    optimizer_cfg = cfg.get_optimizer_preset()
+    assert optimizer_cfg.type == "adamw" and optimizer_cfg.weight_decay == 0.01
+    param = torch.nn.Parameter(torch.zeros(1))
+    optimizer = optimizer_cfg.build([{"params": [param], "lr": cfg.optimizer_lr_heads}])
+    scheduler = cfg.get_scheduler_preset().build(optimizer, num_training_steps=200)
+    lrs = []
+    for _ in range(200):
+        lrs.append(optimizer.param_groups[0]["lr"])
+        optimizer.step()
+        scheduler.step()
+    peak = max(lrs)
+    assert lrs.index(peak) == 10  # warmup = 5% of the 200 steps
+    assert peak == pytest.approx(1e-4, rel=0.01)
+    assert lrs[-1] == pytest.approx(3e-6, rel=0.05)  # cosine decays to 3e-6 at the end of the run
