@@ -1,0 +1,225 @@
+"""SubgoalVLAModel: the math-only core of the policy (paper section 4, appendix B; DESIGN.md "The model").
+
+::
+
+    cameras + instruction --VLMBackbone--> H[k], mask                                (B, S, E)
+    S_t --planner aggregator (PCA, eq. 2)--> f^{c,g}                                 (B, h, E)
+    planner DiT psi + DDIM --> subgoal trace G_hat                                    (B, M, p)
+    [S_t, G] --generator aggregator (PCA)--> f^{c,a}                                  (B, h+M, E)
+    generator DiT phi + DDIM --> action chunk A_hat                                   (B, N, A)
+
+The backbone runs once per chunk (``encode``); both heads read the same H[k]. Two-stage training (section 4.3):
+stage I conditions the generator on the ground-truth trace G (everything trains); stage II conditions it on a
+trace the planner samples without gradient, and the backbone runs under ``no_grad`` (frozen) while both heads keep
+training. Ablations are configuration: ``feature_aggregation`` (table 4) swaps the aggregator, ``use_planner=False``
+("w/o SP", table 3) drops the planner so the generator queries come from S_t alone, ``subgoal_trace_len=1`` ("w/o
+ST") keeps only the first trace step.
+
+The batch is already normalised by the processor (state, history and trace share the state statistics; actions use
+their own). Cameras arrive in [0, 1] and are resized/normalised here for the vision tower (on the device).
+
+Dimension legend: ``B`` batch, ``h`` history steps, ``M`` trace steps, ``p`` proprio dim, ``N`` chunk size,
+``A`` action dim, ``L`` tokens, ``S`` VLM tokens (= L), ``E`` VLM hidden size (= cross-attention width).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
+from torch import Tensor, nn
+
+from lerobot_subgoalvla.policies.subgoalvla.backbone import TinyLlavaDims, VLMBackbone
+from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
+    ACTION_KEY,
+    GRIPPER_CAMERA_KEY,
+    STATE_HISTORY_KEY,
+    STATE_KEY,
+    STATIC_CAMERA_KEY,
+    SUBGOAL_TRACE_KEY,
+    CrossAttentionConfig,
+    DiTHeadConfig,
+    SubgoalVLAConfig,
+)
+from lerobot_subgoalvla.policies.subgoalvla.diffusion import DiffusionObjective
+from lerobot_subgoalvla.policies.subgoalvla.dit import DiT
+from lerobot_subgoalvla.policies.subgoalvla.proprio_attention import build_aggregator
+
+ACTION_IS_PAD_KEY = "action_is_pad"
+
+
+def _tiny_dims(config: SubgoalVLAConfig) -> TinyLlavaDims | None:
+    if config.backbone.name_or_path is not None:
+        return None
+    return TinyLlavaDims(
+        **{f.name: getattr(config.backbone, f.name) for f in dataclasses.fields(TinyLlavaDims)}
+    )
+
+
+def _objective(head: DiTHeadConfig) -> DiffusionObjective:
+    return DiffusionObjective(
+        num_train_timesteps=head.num_train_timesteps,
+        num_inference_steps=head.num_inference_steps,
+        guidance_scale=head.guidance_scale,
+        repeats=head.repeated_diffusion_steps,
+        l2_weight=head.l2_weight,
+        cond_dropout_prob=head.label_dropout,
+    )
+
+
+def _dit(head: DiTHeadConfig, input_dim: int, cond_dim: int) -> DiT:
+    return DiT(input_dim, cond_dim, head.hidden_size, head.depth, head.num_heads, head.mlp_ratio)
+
+
+class SubgoalVLAModel(nn.Module):
+    """Backbone + two aggregators + two DiT heads + their diffusion objectives, built from a SubgoalVLAConfig.
+
+    Args:
+        config: the policy config; ``input_features[observation.state]`` gives p, ``action_feature`` gives A.
+    """
+
+    def __init__(self, config: SubgoalVLAConfig) -> None:
+        super().__init__()
+        self.config = config
+        bb = config.backbone
+        self.backbone = VLMBackbone(
+            bb.name_or_path, bb.layer, bb.freeze_vision_tower, _tiny_dims(config), bb.torch_dtype
+        )
+        self.state_dim = config.input_features[STATE_KEY].shape[-1]
+        self.action_dim = config.action_feature.shape[-1]
+        width = self.backbone.hidden_size  # PCA works in the vision-language space (paper 4.1, table 5)
+        h, m = config.state_history_len, config.subgoal_trace_len
+        self.planner_aggregator: nn.Module | None = None
+        self.planner: DiT | None = None
+        if config.use_planner:
+            self.planner_aggregator = self._aggregator(config.planner_attention, h, width)
+            self.planner = _dit(config.planner, self.state_dim, width)
+        generator_queries = h + m if config.use_planner else h
+        self.generator_aggregator = self._aggregator(config.generator_attention, generator_queries, width)
+        self.generator = _dit(config.generator, self.action_dim, width)
+        self.planner_objective = _objective(config.planner)
+        self.generator_objective = _objective(config.generator)
+
+    def _aggregator(self, attn: CrossAttentionConfig, num_queries: int, width: int) -> nn.Module:
+        return build_aggregator(
+            self.config.feature_aggregation,
+            self.state_dim,
+            num_queries,
+            width,
+            width,
+            attn.num_layers,
+            attn.num_heads,
+            attn.mlp_ratio,
+            attn.dropout,
+            self.config.aggregation_top_k,
+        )
+
+    def head_parameters(self) -> list[nn.Parameter]:
+        """Aggregators and DiT heads (learning rate 1e-4, table 8); the backbone groups live on ``backbone``."""
+        heads = [self.planner_aggregator, self.planner, self.generator_aggregator, self.generator]
+        return [p for module in heads if module is not None for p in module.parameters()]
+
+    # ----------------------------------------------------------------------------------------------------------
+    def encode(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
+        """Run the backbone once: layer-k states of image + instruction tokens.
+
+        Args:
+            batch: ``observation.images.static`` (B, 3, H, W) and ``observation.images.gripper`` (B, 3, h, w) in
+                [0, 1]; ``observation.language.tokens`` (B, L); ``observation.language.attention_mask`` (B, L).
+
+        Returns:
+            hidden (B, S, E) float32 and mask (B, S) bool (True = valid).
+        """
+        pixels = self.backbone.prepare_pixel_values(batch[STATIC_CAMERA_KEY], batch[GRIPPER_CAMERA_KEY])
+        hidden, mask = self.backbone(batch[OBS_LANGUAGE_TOKENS], batch[OBS_LANGUAGE_ATTENTION_MASK], pixels)
+        return hidden.float(), mask  # heads run in float32 whatever the backbone dtype
+
+    def _generator_queries(self, history: Tensor, trace: Tensor | None) -> Tensor:
+        """``[S_t, G]`` (B, h+M, p) with a planner, ``S_t`` (B, h, p) without (w/o SP)."""
+        return history if trace is None else torch.cat([history, trace], dim=1)
+
+    def compute_losses(
+        self, batch: dict[str, Tensor], stage: str, generator: torch.Generator | None = None
+    ) -> dict[str, Tensor]:
+        """Diffusion losses of planner (eq. 3) and generator (eq. 4), summed as in eq. 1.
+
+        Args:
+            batch: the ``encode`` keys plus ``observation.state_history`` (B, h, p), ``observation.subgoal_trace``
+                (B, >=M, p), ``action`` (B, N, A) and optionally ``action_is_pad`` (B, N) bool.
+            stage: "stage1" (generator conditioned on the ground-truth trace) or "stage2" (on a planner sample,
+                backbone frozen).
+            generator: RNG for timesteps, noise, label dropout and the stage-II trace sample.
+
+        Returns:
+            ``planner_loss``, ``generator_loss`` and ``loss`` (their sum); planner_loss is 0 without a planner.
+        """
+        if stage not in ("stage1", "stage2"):
+            raise ValueError(f"stage must be 'stage1' or 'stage2', got {stage!r}")
+        if stage == "stage2" and self.planner is None:
+            raise ValueError("stage2 needs the planner; use_planner=False (w/o SP) trains in stage1 only")
+        with torch.set_grad_enabled(torch.is_grad_enabled() and stage == "stage1"):
+            hidden, mask = self.encode(batch)  # stage II: backbone frozen, no graph through it
+        history = batch[STATE_HISTORY_KEY]
+        trace = batch[SUBGOAL_TRACE_KEY][:, : self.config.subgoal_trace_len]  # (B, M, p)
+        planner_loss = hidden.new_zeros(())
+        condition_trace = None
+        if self.planner is not None:
+            features, features_mask = self.planner_aggregator(history, hidden, mask)  # (B, h, E)
+            planner_loss = self.planner_objective.compute_loss(
+                self.planner, trace, features, features_mask, generator=generator
+            )
+            condition_trace = trace
+            if stage == "stage2":
+                condition_trace = self.planner_objective.sample(
+                    self.planner, tuple(trace.shape), features.detach(), features_mask, generator=generator
+                )
+        features, features_mask = self.generator_aggregator(
+            self._generator_queries(history, condition_trace), hidden, mask
+        )  # (B, h[+M], E)
+        is_pad = batch.get(ACTION_IS_PAD_KEY)
+        generator_loss = self.generator_objective.compute_loss(
+            self.generator,
+            batch[ACTION_KEY],
+            features,
+            features_mask,
+            valid_mask=None if is_pad is None else ~is_pad.bool(),
+            generator=generator,
+        )
+        return {
+            "planner_loss": planner_loss,
+            "generator_loss": generator_loss,
+            "loss": planner_loss + generator_loss,
+        }
+
+    @torch.no_grad()
+    def sample_actions(
+        self, batch: dict[str, Tensor], generator: torch.Generator | None = None
+    ) -> tuple[Tensor, Tensor | None]:
+        """Plan a trace and generate an action chunk (one backbone pass, DDIM for both heads).
+
+        Args:
+            batch: the ``encode`` keys plus ``observation.state_history`` (B, h, p), normalised.
+            generator: RNG for the initial noise of both samplers (None = global RNG).
+
+        Returns:
+            actions (B, N, A) and the planned trace (B, M, p) in the normalised space (None without a planner).
+        """
+        hidden, mask = self.encode(batch)
+        history = batch[STATE_HISTORY_KEY]
+        b = history.shape[0]
+        trace = None
+        if self.planner is not None:
+            features, features_mask = self.planner_aggregator(history, hidden, mask)
+            shape = (b, self.config.subgoal_trace_len, self.state_dim)
+            trace = self.planner_objective.sample(
+                self.planner, shape, features, features_mask, generator=generator
+            )
+        features, features_mask = self.generator_aggregator(
+            self._generator_queries(history, trace), hidden, mask
+        )
+        shape = (b, self.config.chunk_size, self.action_dim)
+        actions = self.generator_objective.sample(
+            self.generator, shape, features, features_mask, generator=generator
+        )
+        return actions, trace
