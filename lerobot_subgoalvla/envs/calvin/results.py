@@ -1,0 +1,177 @@
+"""Per-episode results of CALVIN's long-horizon evaluation: records, JSON lines, shards, lerobot-eval import.
+
+One :class:`EpisodeResult` per evaluated chain (calvin-spec.md 4.3): how many of its five subtasks were completed
+in a row before the first failure. Two sources produce them:
+
+- the env, when given a ``results_path``, appends one JSON line per finished chain
+  (:func:`append_episode_result`);
+- lerobot-eval's ``eval_info.json``, where each chain is one ``task_id`` and ``per_task[*].metrics.sum_rewards``
+  holds the completed-subtask count (reward 1 per subtask; plugin guide 3.4), via
+  :func:`episode_results_from_eval_info`.
+
+Chains can be evaluated in shards (ranges of chain ids, on several processes or machines); :func:`merge_results`
+joins the shards by ``chain_id`` and refuses duplicates, so no chain is counted twice.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lerobot_subgoalvla.calvin_vocab import check_task_name
+
+#: Per-subtask outcomes (CALVIN's per-task counting, spec 4.4).
+SUCCESS, FAILURE, NOT_ATTEMPTED = "success", "failure", "not_attempted"
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file in the same folder + rename: never half-written."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """The outcome of one chain.
+
+    Args:
+        chain_id: index of the chain in the chain list (``generate_chains(num_chains)``).
+        tasks: the chain's task names, in order.
+        num_completed: subtasks completed in a row before the first failure (0..len(tasks)); CALVIN's "result".
+        subtask_steps: env steps spent on each attempted subtask (the successful ones and the failed one), or
+            None when unknown (results imported from ``eval_info.json``).
+    """
+
+    chain_id: int
+    tasks: tuple[str, ...]
+    num_completed: int
+    subtask_steps: tuple[int, ...] | None = None
+
+    def __post_init__(self) -> None:
+        for task in self.tasks:
+            check_task_name(task)
+        if not 0 <= self.num_completed <= len(self.tasks):
+            raise ValueError(
+                f"chain {self.chain_id}: num_completed={self.num_completed} not in 0..{len(self.tasks)}"
+            )
+        attempted = min(self.num_completed + 1, len(self.tasks))
+        if self.subtask_steps is not None and len(self.subtask_steps) != attempted:
+            raise ValueError(
+                f"chain {self.chain_id}: {len(self.subtask_steps)} subtask_steps for {attempted} attempted subtasks"
+            )
+
+    @property
+    def outcomes(self) -> tuple[str, ...]:
+        """Per subtask: success before the failure, the failed one, the rest not attempted (spec 4.4)."""
+        failed = (FAILURE,) if self.num_completed < len(self.tasks) else ()
+        rest = len(self.tasks) - self.num_completed - len(failed)
+        return (SUCCESS,) * self.num_completed + failed + (NOT_ATTEMPTED,) * rest
+
+    @property
+    def steps(self) -> int | None:
+        """Total env steps of the episode, when known."""
+        return None if self.subtask_steps is None else sum(self.subtask_steps)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"chain_id": self.chain_id, "tasks": list(self.tasks), "num_completed": self.num_completed,
+                "outcomes": list(self.outcomes), "steps": self.steps,
+                "subtask_steps": None if self.subtask_steps is None else list(self.subtask_steps)}  # fmt: skip
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> EpisodeResult:
+        steps = data.get("subtask_steps")
+        result = cls(int(data["chain_id"]), tuple(data["tasks"]), int(data["num_completed"]),
+                     None if steps is None else tuple(int(s) for s in steps))  # fmt: skip
+        if "outcomes" in data and tuple(data["outcomes"]) != result.outcomes:
+            raise ValueError(f"chain {result.chain_id}: outcomes {data['outcomes']} contradict num_completed")
+        return result
+
+
+def append_episode_result(path: Path, result: EpisodeResult) -> None:
+    """Append one JSON line (a single write, so concurrent appenders do not interleave lines)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as f:
+        f.write(json.dumps(result.to_dict()) + "\n")
+
+
+def read_episode_results(path: Path) -> list[EpisodeResult]:
+    """All records of a JSON-lines results file, in file order."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"Results file {path} not found")
+    results = []
+    for number, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            results.append(EpisodeResult.from_dict(json.loads(line)))
+        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+            raise ValueError(
+                f"{path}:{number}: not an episode result ({err}); remove or fix that line"
+            ) from None
+    return results
+
+
+def merge_results(shards: Mapping[str, Iterable[EpisodeResult]]) -> list[EpisodeResult]:
+    """Join shards (name -> results) by chain id, sorted; a chain id seen twice is an error."""
+    seen: dict[int, str] = {}
+    merged: list[EpisodeResult] = []
+    for source, results in shards.items():
+        for result in results:
+            if result.chain_id in seen:
+                raise ValueError(
+                    f"chain {result.chain_id} appears twice ({seen[result.chain_id]} and {source}); "
+                    "each chain must be evaluated once - drop the overlapping shard"
+                )
+            seen[result.chain_id] = source
+            merged.append(result)
+    return sorted(merged, key=lambda r: r.chain_id)
+
+
+def episode_results_from_eval_info(
+    eval_info: Mapping[str, Any], chain_tasks: Mapping[int, Sequence[str]]
+) -> list[EpisodeResult]:
+    """Results from lerobot-eval's ``eval_info.json``: ``task_id`` = chain id, ``sum_rewards`` = completed count.
+
+    Args:
+        eval_info: the parsed ``eval_info.json`` (needs ``per_task[*].task_id`` and ``.metrics.sum_rewards``).
+        chain_tasks: chain id -> its task names, from the chain list the evaluation used.
+
+    Raises:
+        ValueError: missing fields, a chain id outside ``chain_tasks``, not exactly one episode per chain, or a
+            non-integer reward sum.
+    """
+    if not isinstance(eval_info, Mapping) or not isinstance(eval_info.get("per_task"), list):
+        raise ValueError("eval_info has no 'per_task' list; pass the eval_info.json that lerobot-eval wrote")
+    results = []
+    for entry in eval_info["per_task"]:
+        try:
+            chain_id, sums = int(entry["task_id"]), entry["metrics"]["sum_rewards"]
+        except (KeyError, TypeError, ValueError) as err:
+            raise ValueError(f"eval_info per_task entry lacks task_id/metrics.sum_rewards ({err})") from None
+        if chain_id not in chain_tasks:
+            raise ValueError(
+                f"eval_info task_id {chain_id} is not in the chain list; pass the chains file used"
+            )
+        if len(sums) != 1:
+            raise ValueError(f"chain {chain_id} has {len(sums)} episodes; CALVIN runs each chain once "
+                             "(lerobot-eval --eval.n_episodes=1)")  # fmt: skip
+        completed = round(float(sums[0]))
+        if abs(float(sums[0]) - completed) > 1e-6:
+            raise ValueError(f"chain {chain_id}: sum_rewards {sums[0]} is not a whole number of subtasks")
+        results.append(EpisodeResult(chain_id, tuple(chain_tasks[chain_id]), completed))
+    return results
