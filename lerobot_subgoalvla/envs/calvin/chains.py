@@ -45,7 +45,7 @@ from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS, TASK_NAMES
 from lerobot_subgoalvla.envs.calvin.results import (
     EpisodeResult,
     append_episode_result,
-    atomic_write_text,
+    atomic_write,
     episode_results_from_eval_info,
     merge_results,
     read_episode_results,
@@ -358,7 +358,7 @@ def generate_chains(num_chains: int = 1000) -> list[Chain]:
 
 def save_chains(path: Path, chains: Sequence[Chain], start: int = 0) -> None:
     """Write chains (ids ``start``...) as a JSON list, atomically."""
-    atomic_write_text(path, json.dumps([c.to_dict(start + k) for k, c in enumerate(chains)], indent=1))
+    atomic_write(path, json.dumps([c.to_dict(start + k) for k, c in enumerate(chains)], indent=1))
 
 
 def load_chains(path: Path) -> dict[int, Chain]:
