@@ -401,7 +401,8 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``subgoalvla-calvin-chains``: write chains ``[start, stop)`` of CALVIN's list as JSON."""
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    # force: importing LeRobot installs a WARNING-level root handler that would swallow this CLI's INFO lines
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s", force=True)
     try:
         args = _parse_args(argv)
         chains = generate_chains(args.num_chains)[args.start : args.stop]

@@ -176,7 +176,8 @@ def _parse_args(argv: Sequence[str] | None) -> Any:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``subgoalvla-calvin-report``: log the LH table, write results.json and results.png."""
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    # force: importing LeRobot installs a WARNING-level root handler that would swallow this CLI's INFO lines
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s", force=True)
     try:
         args = _parse_args(argv)
         report = summarize(load_results(args.results, args.chains, args.num_chains))
