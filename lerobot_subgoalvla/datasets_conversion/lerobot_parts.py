@@ -1,0 +1,218 @@
+"""Writing CALVIN episodes into LeRobotDataset v3 part-datasets (the data contract, team brief / DESIGN.md).
+
+The converter shards its episode list into fixed-size *parts*; each part is a complete LeRobotDataset
+written with LeRobot's own protocol (``create`` -> ``add_frame`` -> ``save_episode`` -> ``finalize``) into
+``part-XXXXXX.tmp`` and renamed to ``part-XXXXXX`` once finalized. A rename is atomic, so after a crash a
+part is either complete or discarded, which makes the conversion resumable and lets parts be written by
+parallel worker processes; ``lerobot.datasets.aggregate_datasets`` then merges them in order.
+
+Dimension legend:
+    F    frames of one episode
+    L_h  history length, L_s trace length, P = 15 robot_obs dims
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Literal
+from unittest import mock
+
+import numpy as np
+import pandas as pd
+
+from lerobot_subgoalvla.calvin_vocab import ACTION_NAMES, CALVIN_FPS, ROBOT_OBS_NAMES, SCENE_OBS_NAMES
+from lerobot_subgoalvla.datasets_conversion.calvin_format import CalvinSplit
+from lerobot_subgoalvla.datasets_conversion.calvin_quirks import (
+    CANONICAL_BLOCK_ORDER,
+    EpisodeSpec,
+    block_order_of,
+    canonicalize_scene_obs,
+)
+from lerobot_subgoalvla.datasets_conversion.subgoal_traces import state_history, subgoal_traces
+
+logger = logging.getLogger(__name__)
+
+STATIC_KEY = "observation.images.static"
+GRIPPER_KEY = "observation.images.gripper"
+FRAME_INDEX_KEY = "calvin_frame_index"
+ROBOT_TYPE = "franka_panda"
+
+
+@dataclass(frozen=True)
+class ConversionOptions:
+    """Options that change the written data; stored in ``meta/info.json["subgoalvla"]``.
+
+    Args:
+        trace_start: offset of the first subgoal-trace state (paper appendix A: 14).
+        trace_length: number of trace states (paper: 8).
+        history_length: number of states in ``observation.state_history`` (15 = robot_obs[t-14 .. t]).
+        image_format: ``video`` (AV1 mp4 via PyAV, LeRobot's default encoder) or ``image`` (PNG in parquet).
+        mode: ``lang`` (one episode per language window) or ``all`` (one per play segment).
+    """
+
+    trace_start: int = 14
+    trace_length: int = 8
+    history_length: int = 15
+    image_format: Literal["video", "image"] = "video"
+    mode: Literal["lang", "all"] = "lang"
+
+    def __post_init__(self) -> None:
+        if self.image_format not in ("video", "image"):
+            raise ValueError(f"--image-format must be 'video' or 'image', got {self.image_format!r}")
+        if self.mode not in ("lang", "all"):
+            raise ValueError(f"--mode must be 'lang' or 'all', got {self.mode!r}")
+        for name in ("trace_length", "history_length"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        if self.trace_start < 0:
+            raise ValueError(f"--trace-start must be >= 0, got {self.trace_start}")
+
+    def info(self) -> dict:
+        """The ``"subgoalvla"`` block of ``meta/info.json``."""
+        return {**asdict(self), "block_order": list(CANONICAL_BLOCK_ORDER), "source_fps": CALVIN_FPS}
+
+
+def build_features(
+    static_shape: tuple[int, ...], gripper_shape: tuple[int, ...], options: ConversionOptions
+) -> dict[str, dict]:
+    """The LeRobot feature schema of the data contract (camera sizes are read from the source frames)."""
+    image_dtype = options.image_format
+    hwc = ["height", "width", "channels"]
+    return {
+        STATIC_KEY: {"dtype": image_dtype, "shape": tuple(static_shape), "names": hwc},
+        GRIPPER_KEY: {"dtype": image_dtype, "shape": tuple(gripper_shape), "names": hwc},
+        "observation.state": {"dtype": "float32", "shape": (15,), "names": list(ROBOT_OBS_NAMES)},
+        "observation.environment_state": {"dtype": "float32", "shape": (24,), "names": list(SCENE_OBS_NAMES)},
+        "observation.state_history": {
+            "dtype": "float32",
+            "shape": (options.history_length, 15),
+            "names": None,
+        },
+        "observation.subgoal_trace": {"dtype": "float32", "shape": (options.trace_length, 15), "names": None},
+        "action": {"dtype": "float32", "shape": (7,), "names": list(ACTION_NAMES)},
+        FRAME_INDEX_KEY: {"dtype": "int64", "shape": (1,), "names": None},
+    }
+
+
+def episode_arrays(
+    split: CalvinSplit, episode: EpisodeSpec, options: ConversionOptions
+) -> dict[str, np.ndarray]:
+    """All per-frame arrays of one episode, already in the contract's dtypes.
+
+    Returns:
+        ``{feature_key: (F, ...) array}`` plus ``"task"`` (F,) object array.
+    """
+    frame_ids = np.arange(episode.start, episode.end + 1)
+    raw = split.load_frames(frame_ids.tolist())
+    scene_obs = raw["scene_obs"].copy()  # (F, 24)
+    scenes = [split.scene_of(int(i)) for i in frame_ids]
+    for scene in sorted(set(scenes)):
+        mask = np.array([s == scene for s in scenes])
+        scene_obs[mask] = canonicalize_scene_obs(raw["scene_obs"][mask], block_order_of(scene))
+    robot_obs = raw["robot_obs"].astype(np.float32)  # (F, 15)
+    return {
+        STATIC_KEY: raw["rgb_static"],
+        GRIPPER_KEY: raw["rgb_gripper"],
+        "observation.state": robot_obs,
+        "observation.environment_state": scene_obs.astype(np.float32),
+        "observation.state_history": state_history(robot_obs, options.history_length),  # (F, L_h, P)
+        "observation.subgoal_trace": subgoal_traces(robot_obs, options.trace_start, options.trace_length),
+        "action": raw["rel_actions"].astype(np.float32),
+        FRAME_INDEX_KEY: frame_ids.astype(np.int64)[:, None],  # (F, 1)
+        "task": np.array(episode.tasks, dtype=object),
+    }
+
+
+def iter_frames(arrays: dict[str, np.ndarray]) -> Iterator[dict]:
+    """Per-frame dicts for ``LeRobotDataset.add_frame`` (``task`` as a plain str)."""
+    for t in range(len(arrays["task"])):
+        yield {key: (str(value[t]) if key == "task" else value[t]) for key, value in arrays.items()}
+
+
+@dataclass(frozen=True)
+class PartJob:
+    """One part-dataset to write (picklable: sent to worker processes)."""
+
+    index: int
+    parts_dir: Path
+    repo_id: str
+    split_dir: Path
+    episodes: tuple[EpisodeSpec, ...]
+    features: dict
+    options: ConversionOptions
+
+    @property
+    def final_dir(self) -> Path:
+        """``parts/part-XXXXXX`` (exists only once the part is complete)."""
+        return self.parts_dir / f"part-{self.index:06d}"
+
+
+def write_part(job: PartJob) -> int:
+    """Write one part-dataset atomically; returns its number of frames."""
+    from lerobot.datasets import LeRobotDataset
+
+    tmp_dir = job.final_dir.with_suffix(".tmp")
+    shutil.rmtree(tmp_dir, ignore_errors=True)
+    split = CalvinSplit(job.split_dir)
+    dataset = LeRobotDataset.create(
+        repo_id=f"{job.repo_id}-{job.final_dir.name}",
+        fps=CALVIN_FPS,
+        features=job.features,
+        root=tmp_dir,
+        robot_type=ROBOT_TYPE,
+        video_backend="pyav",  # decoding backend; avoids probing torchcodec, which needs system FFmpeg
+        use_videos=job.options.image_format == "video",
+        streaming_encoding=job.options.image_format == "video",
+    )
+    frames = 0
+    for episode in job.episodes:
+        for frame in iter_frames(episode_arrays(split, episode, job.options)):
+            dataset.add_frame(frame)
+        dataset.save_episode()
+        frames += episode.length
+    dataset.finalize()
+    tmp_dir.rename(job.final_dir)
+    return frames
+
+
+def _with_plain_array_columns(update: Callable) -> Callable:
+    """Wrap ``aggregate.update_data_df`` so 2-D columns leave it as plain object columns.
+
+    Why: with ``datasets`` imported, pandas reads our Array2D columns (state_history, subgoal_trace) as
+    ``datasets``' ``PandasArrayExtensionDtype``, which pyarrow cannot convert back (``ArrowTypeError: Did not
+    pass numpy.dtype object``) and pandas cannot concatenate (its ``_metadata`` is a str). Turning every such
+    cell into a list of 1-D rows restores the ``list<list<float>>`` layout LeRobot itself writes.
+    """
+
+    def wrapped(df, src_meta, dst_meta):
+        df = update(df, src_meta, dst_meta)
+        for column in df.columns:
+            if type(df[column].dtype).__name__ == "PandasArrayExtensionDtype":
+                df[column] = pd.Series(
+                    [list(cell) for cell in df[column].to_numpy()], dtype=object, index=df.index
+                )
+        return df
+
+    return wrapped
+
+
+def merge_parts(part_dirs: list[Path], repo_id: str, merged_dir: Path) -> None:
+    """Merge complete part-datasets, in order, with LeRobot's ``aggregate_datasets`` (0.6.1 public API)."""
+    from lerobot.datasets import aggregate as aggregate_module
+
+    shutil.rmtree(merged_dir, ignore_errors=True)
+    patched = _with_plain_array_columns(aggregate_module.update_data_df)
+    with mock.patch.object(aggregate_module, "update_data_df", patched):
+        aggregate_module.aggregate_datasets(
+            repo_ids=[f"{repo_id}-{path.name}" for path in part_dirs],
+            roots=part_dirs,
+            aggr_repo_id=repo_id,
+            aggr_root=merged_dir,
+            # One parquet per part: appending re-reads the merged file through ``datasets`` and hits the same
+            # extension dtype inside ``pd.concat``; videos are still concatenated.
+            concatenate_data=False,
+        )
