@@ -5,6 +5,7 @@ Importing this package registers the policy type ``subgoalvla`` and the env type
 
 import logging
 
+from lerobot_subgoalvla.envs.calvin.configs import CalvinEnvConfig  # registers "calvin"
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
     SubgoalVLAConfig,  # registers "subgoalvla"
 )
@@ -15,6 +16,7 @@ __version__ = "0.1.0"
 
 __all__: list[str] = [
     "__version__",
+    "CalvinEnvConfig",
     "SubgoalVLAConfig",
     "SubgoalVLAPolicy",
     "make_subgoalvla_pre_post_processors",
