@@ -384,6 +384,12 @@ class OneLineArgumentParser(argparse.ArgumentParser):
         raise ValueError(f"{self.prog}: {message} (see --help)")
 
 
+def configure_cli_logging() -> None:
+    """INFO-level logging for the CLIs; importing LeRobot may already have set up a WARNING-level root logger."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger().setLevel(logging.INFO)
+
+
 def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = OneLineArgumentParser(prog="subgoalvla-calvin-chains", description=__doc__.split("\n")[0])
     parser.add_argument("--num-chains", type=int, default=1000, help="chains in the list (CALVIN: 1000)")
@@ -401,8 +407,7 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``subgoalvla-calvin-chains``: write chains ``[start, stop)`` of CALVIN's list as JSON."""
-    # force: importing LeRobot installs a WARNING-level root handler that would swallow this CLI's INFO lines
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s", force=True)
+    configure_cli_logging()
     try:
         args = _parse_args(argv)
         chains = generate_chains(args.num_chains)[args.start : args.stop]

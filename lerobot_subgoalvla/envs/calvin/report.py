@@ -37,6 +37,7 @@ from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
 from lerobot_subgoalvla.envs.calvin.chains import (
     CHAIN_LENGTH,
     OneLineArgumentParser,
+    configure_cli_logging,
     generate_chains,
     load_chains,
 )
@@ -176,8 +177,7 @@ def _parse_args(argv: Sequence[str] | None) -> Any:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``subgoalvla-calvin-report``: log the LH table, write results.json and results.png."""
-    # force: importing LeRobot installs a WARNING-level root handler that would swallow this CLI's INFO lines
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s", force=True)
+    configure_cli_logging()
     try:
         args = _parse_args(argv)
         report = summarize(load_results(args.results, args.chains, args.num_chains))
