@@ -15,7 +15,7 @@ import argparse
 import logging
 import os
 import sys
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -77,9 +77,15 @@ def main() -> None:
     if unknown:
         logger.error("--tasks: unknown task(s) %s; valid: %s", unknown, ", ".join(TASK_NAMES))
         sys.exit(2)
-    jobs = [(t, args.scene, args.assets_dir, args.episodes, args.max_steps) for t in args.tasks]
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        results = list(pool.map(run_task, *zip(*jobs, strict=True)))
+        futures = [
+            pool.submit(run_task, t, args.scene, args.assets_dir, args.episodes, args.max_steps)
+            for t in args.tasks
+        ]
+        for future in as_completed(futures):
+            r = future.result()
+            logger.info("done %s: %d/%d %s", r["task"], r["successes"], r["episodes"], r["reasons"] or "")
+        results = [f.result() for f in futures]
     logger.info("scene %s, %d episodes per task, budget %d steps", args.scene, args.episodes, args.max_steps)
     logger.info("| task | successes | rate | mean steps |\n|---|---|---|---|")
     for r in results:

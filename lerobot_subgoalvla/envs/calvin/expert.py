@@ -54,7 +54,7 @@ class ScriptedExpert:
             speed=float(np_random.uniform(0.010, 0.015)), slow_speed=float(np_random.uniform(0.005, 0.007))
         )
         self._ctx = SkillContext(sim, np_random, motion)
-        self._script = _script_for(self.task, self._ctx, SceneLayout.from_context(self._ctx))
+        self._script = _lazy_script(self.task, self._ctx)
         self.done = False
         self.failure: str | None = None
         self.steps = 0
@@ -75,6 +75,11 @@ class ScriptedExpert:
 
 
 # ------------------------------------------------------------------------------------------- dispatch
+def _lazy_script(task: str, ctx: SkillContext) -> Skill:
+    """Plan at the first ``act()`` (not in the constructor), so that planning failures end the run cleanly."""
+    yield from _script_for(task, ctx, SceneLayout.from_context(ctx))
+
+
 def _script_for(task: str, ctx: SkillContext, layout: SceneLayout) -> Skill:
     parts = task.split("_")
     if task.startswith("rotate_"):
@@ -113,16 +118,14 @@ def _place_script(ctx: SkillContext, layout: SceneLayout, where: str) -> Skill:
     if block is None:
         raise ExpertFailureError(f"{where}: no block is held")
     if where == "slider":
-        lo, hi = layout.open_shelf_interval(ctx)
-        x = ctx.rng.uniform(lo + 0.04, hi - 0.04) if hi - lo > 0.1 else 0.5 * (lo + hi)
+        lo, hi = layout.cabinet_reach_interval(ctx)
+        x = ctx.rng.uniform(lo, hi) if hi > lo else 0.5 * (lo + hi)
         y = layout.shelf_y + ctx.rng.uniform(-0.01, 0.01)
         return scripts.place_on(ctx, block, np.array([x, y]), layout.shelf_top(ctx, x, y),
                                 via_y=layout.cabinet_front_y - 0.05)  # fmt: skip
     if where == "drawer":
-        x, y = layout.drawer_drop_point(ctx)
-        return scripts.place_on(
-            ctx, block, np.array([x, y]), scripts.top_z(ctx, x, y, "drawer_link"), via_y=None
-        )
+        x, y, floor_z = layout.drawer_drop_point(ctx)
+        return scripts.place_on(ctx, block, np.array([x, y]), floor_z, via_y=None)
     others = [b for b in ctx.block_uids if b != block and _on_table(ctx, b)]
     if not others:
         raise ExpertFailureError("stack_block: no other block rests on the table")

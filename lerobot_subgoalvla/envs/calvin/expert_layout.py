@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lerobot_subgoalvla.envs.calvin.expert_skills import Motion, SkillContext, ray_hits
+from lerobot_subgoalvla.envs.calvin.expert_skills import ExpertFailureError, Motion, SkillContext, ray_hits
 
 if TYPE_CHECKING:
     from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
@@ -28,6 +28,7 @@ class SceneLayout:
 
     desk_x: tuple[float, float]  # x extent of the desk top
     desk_front_y: float  # the desk edge toward the robot
+    desk_top_z: float  # height of the desk surface
     shelf_x: tuple[float, float]  # x extent of the cabinet shelf (plank link)
     shelf_y: float  # y centre of the shelf
     cabinet_front_y: float  # front (-y) edge of the shelf
@@ -51,6 +52,14 @@ class SceneLayout:
         return SceneLayout(
             desk_x=(float(base[0, 0]), float(base[1, 0])),
             desk_front_y=float(base[0, 1]),
+            desk_top_z=float(
+                ray_hits(
+                    ctx,
+                    np.array([[base[0, 0] + 0.03, base[0, 1] + 0.03, 1.0]]),
+                    np.array([[base[0, 0] + 0.03, base[0, 1] + 0.03, 0.0]]),
+                    "base_link",
+                )[0, 2]
+            ),
             shelf_x=(float(plank[0, 0]), float(plank[1, 0])),
             shelf_y=float(0.5 * (plank[0, 1] + plank[1, 1])),
             cabinet_front_y=float(plank[0, 1]),
@@ -72,24 +81,43 @@ class SceneLayout:
         hit = ray_hits(ctx, np.array([[x, y, 0.6]]), np.array([[x, y, 0.3]]), "plank_link")[0]
         return float(hit[2]) if not np.isnan(hit[2]) else float(ctx.link_aabb("plank_link")[1, 2])
 
-    def block_in_open_cabinet(self, ctx: SkillContext, block: str) -> bool:
-        """On the shelf, in the half the door leaves open (CALVIN: slider_left with door right, or vice versa)."""
-        on_shelf = (ctx.table_uid, ctx.links["plank_link"]) in ctx.block_contacts(block)
+    def cabinet_reach_interval(self, ctx: SkillContext) -> tuple[float, float]:
+        """x interval of the open shelf where the gripper fits: the hand is ~0.22 m wide along x, so the
+        fingers must stay 0.125 m from the door's edge and 0.08 m from the cabinet's end wall."""
         lo, hi = self.open_shelf_interval(ctx)
+        door = ctx.link_aabb("slide_link")
+        door_on_right = door[0, 0] >= hi - 0.01
+        return (lo + 0.08, hi - 0.125) if door_on_right else (lo + 0.125, hi - 0.08)
+
+    def block_in_open_cabinet(self, ctx: SkillContext, block: str) -> bool:
+        """On the shelf, in the half the door leaves open (CALVIN: slider_left with door right, or vice versa)
+        and where the gripper fits (:meth:`cabinet_reach_interval`)."""
+        on_shelf = (ctx.table_uid, ctx.links["plank_link"]) in ctx.block_contacts(block)
+        lo, hi = self.cabinet_reach_interval(ctx)
         x = float(ctx.block_pose(block)[0][0])
-        return on_shelf and lo + 0.03 <= x <= hi - 0.03
+        return on_shelf and lo <= x <= hi
 
     # -------------------------------------------------------------------------------------- drawer
     def block_in_drawer(self, ctx: SkillContext, block: str) -> bool:
         return (ctx.table_uid, ctx.links["drawer_link"]) in ctx.block_contacts(block)
 
-    def drawer_drop_point(self, ctx: SkillContext) -> tuple[float, float]:
-        """A point of the open drawer's floor in front of the desk edge (reachable from above)."""
+    def drawer_drop_point(self, ctx: SkillContext) -> tuple[float, float, float]:
+        """A point (x, y, floor z) of the open drawer in front of the desk edge (reachable from above).
+
+        Found by downward rays started just under the desk top, below the robot and the block it holds.
+        """
         lo, hi = ctx.link_aabb("drawer_link")
-        x = ctx.rng.uniform(lo[0] + 0.09, hi[0] - 0.09)
-        inner_front = lo[1] + 0.05
-        y = ctx.rng.uniform(inner_front, min(inner_front + 0.04, self.desk_front_y - 0.06))
-        return float(x), float(y)
+        x = float(ctx.rng.uniform(lo[0] + 0.1, hi[0] - 0.1))
+        ys = np.arange(lo[1], self.desk_front_y - 0.05, 0.005)
+        start_z = np.full_like(ys, self.desk_top_z - 0.005)
+        tops = ray_hits(ctx, np.stack([np.full_like(ys, x), ys, start_z], axis=1),
+                        np.stack([np.full_like(ys, x), ys, np.zeros_like(ys)], axis=1), "drawer_link")[:, 2]  # fmt: skip
+        floor = np.isfinite(tops) & (tops < np.nanmin(tops) + 0.005)
+        if floor.sum() < 2:
+            raise ExpertFailureError("the drawer floor is not reachable in front of the desk")
+        y_floor = ys[floor]
+        y_lo, y_hi = y_floor.min() + 0.035, max(y_floor.min() + 0.035, y_floor.max() - 0.035)
+        return x, float(ctx.rng.uniform(y_lo, y_hi)), float(np.nanmin(tops))
 
     def above_drawer(self, ctx: SkillContext, block: str) -> bool:
         """Block x within the drawer (with margin): pushed toward the robot it falls in (push_into_drawer)."""

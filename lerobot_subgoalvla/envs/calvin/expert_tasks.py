@@ -31,6 +31,8 @@ YAW_RANGE = (-0.6, 3.6)
 BLOCK_HALF = 0.02
 #: Unit vector of the switch lever's travel (spec 3.2: 0.088 m of joint = +0.044 y, +0.076 z).
 SWITCH_AXIS = np.array([0.0, 0.5, np.sqrt(3) / 2])
+#: Outward normal of the slanted face the switch slides on (toward the robot and up).
+SWITCH_NORMAL = np.array([0.0, -np.sqrt(3) / 2, 0.5])
 
 
 # --------------------------------------------------------------------------------------------- geometry
@@ -94,17 +96,22 @@ def top_z(ctx: SkillContext, x: float, y: float, link: str | None = None) -> flo
 
 
 # ---------------------------------------------------------------------------------------------- blocks
-def grasp(ctx: SkillContext, block: str, turn: float = 0.0) -> Skill:
-    """Approach ``block`` from above with the fingers open, descend, close; fails if nothing is held."""
+def grasp(ctx: SkillContext, block: str, turn: float = 0.0, tilt: float = 0.0) -> Skill:
+    """Approach ``block`` along the fingers with the gripper open, close; fails if nothing is held.
+
+    ``tilt`` > 0 leans the fingers toward +y (into the cabinet): the approach then comes from the front and
+    above, keeping the hand outside the cabinet's slanted opening (lift_*_slider).
+    """
     pos, rot = ctx.block_pose(block)
     yaw = grasp_yaw(rot, turn=turn) + ctx.rng.uniform(-0.05, 0.05)
-    euler = down_euler(yaw)
+    euler = tilted_euler(yaw, tilt) if tilt else down_euler(yaw)
+    approach = np.array([0.0, np.sin(tilt), -np.cos(tilt)])  # hand -> fingertips
     ctx.gripper = GRIPPER_OPEN
-    hover = pos + np.array([0, 0, ctx.rng.uniform(0.07, 0.11)]) + ctx.jitter(0.01) * [1, 1, 0]
-    yield from ctx.servo(hover, euler, tol=0.015, what=f"above {block}")
+    hover = pos - approach * ctx.rng.uniform(0.07, 0.11) + ctx.jitter(0.01) * [1, 1, 0]
+    yield from ctx.servo(hover, euler, tol=0.015, rot_tol=0.08, max_steps=100, what=f"above {block}")
     pos, rot = ctx.block_pose(block)
-    target = pos + np.array([0, 0, ctx.rng.uniform(0.0, 0.006)])
-    yield from ctx.servo(target + [0, 0, 0.03], euler, tol=0.01, what=f"pre-grasp {block}")
+    target = pos + np.array([0, 0, ctx.rng.uniform(0.0, 0.006) + (0.006 if tilt else 0.0)])
+    yield from ctx.servo(target - 0.03 * approach, euler, tol=0.01, what=f"pre-grasp {block}")
     yield from ctx.servo(target, euler, speed=ctx.motion.slow_speed, tol=0.006, max_steps=40,
                          what=f"grasp {block}", allow_timeout=True)  # fmt: skip
     yield from ctx.set_gripper(GRIPPER_CLOSE)
@@ -125,7 +132,7 @@ def lift(ctx: SkillContext, block: str, height: float = 0.1) -> Skill:
 
 def lift_out(ctx: SkillContext, block: str, exit_y: float) -> Skill:
     """Grasp a block in the cabinet or drawer, raise it clear and pull it out toward the robot to ``exit_y``."""
-    yield from grasp(ctx, block)
+    yield from grasp(ctx, block, tilt=ctx.rng.uniform(0.95, 1.05))
     tcp, euler = ctx.tcp()
     yield from ctx.servo(tcp + [0, 0, 0.045], euler, tol=0.01, what=f"raise {block}")
     tcp, _ = ctx.tcp()
@@ -297,25 +304,54 @@ def press_button(ctx: SkillContext) -> Skill:
     )
 
 
-def move_switch(ctx: SkillContext, up: bool) -> Skill:
-    """Slide the switch knob along its rail: from below-front to push it up, from above to push it down."""
+def switch_knob(ctx: SkillContext) -> dict[str, float]:
+    """Measure the switch knob in rail coordinates (u along the rail, n out of the slanted face) by rays.
+
+    Rays are cast into the face (-n) over a grid around the switch link; the knob is the outermost part.
+    Returns the knob's x centre, its extent along u and its top along n (all relative to the world origin).
+    """
     lo, hi = ctx.link_aabb("switch_link")
-    x = 0.5 * (lo[0] + hi[0]) + ctx.rng.uniform(-0.02, 0.02)
+    centre = 0.5 * (lo + hi)
+    grid = np.array([(a, b) for a in np.arange(-0.07, 0.071, 0.01) for b in np.arange(-0.08, 0.081, 0.004)])
+    starts = centre + grid[:, :1] * [1, 0, 0] + grid[:, 1:] * SWITCH_AXIS + 0.15 * SWITCH_NORMAL
+    hits = ray_hits(ctx, starts, starts - 0.3 * SWITCH_NORMAL, "switch_link")
+    hits = hits[np.isfinite(hits[:, 0])]
+    if len(hits) == 0:
+        raise ExpertFailureError("switch knob not found by ray casts")
+    n, u = hits @ SWITCH_NORMAL, hits @ SWITCH_AXIS
+    knob = hits[n > n.max() - 0.012]
+    return {
+        "x": float(np.median(knob[:, 0])),
+        "u_min": float((knob @ SWITCH_AXIS).min()),
+        "u_max": float((knob @ SWITCH_AXIS).max()),
+        "n_top": float(n.max()),
+        "u_all_min": float(u.min()),
+    }
+
+
+def move_switch(ctx: SkillContext, up: bool) -> Skill:
+    """Slide the switch knob along its rail with the fingertips, pointing into the slanted face.
+
+    Up (lightbulb on): contact on the knob's lower side, push along +u; down: upper side, push along -u.
+    """
+    knob = switch_knob(ctx)
     ctx.gripper = GRIPPER_CLOSE
-    euler = down_euler(HOME_YAW + ctx.rng.uniform(-0.1, 0.1))
+    face_angle = np.pi / 6  # the rail climbs at 60 deg: the face normal is 30 deg above horizontal
+    # Fingers close along x, so that the hand is thin along the rail and stays above the desk.
+    euler = tilted_euler(
+        HOME_YAW + ctx.rng.uniform(-0.08, 0.08), np.pi / 2 - face_angle + ctx.rng.uniform(-0.1, 0.05)
+    )
+    x = knob["x"] + ctx.rng.uniform(-0.025, 0.025)
+    u = knob["u_min"] - 0.022 if up else knob["u_max"] + 0.022
+    n = knob["n_top"] - ctx.rng.uniform(0.008, 0.014)
+    contact = np.array([x, 0.0, 0.0]) + u * SWITCH_AXIS + n * SWITCH_NORMAL
     state = ctx.joint_state("switch_link")
-    if up:
-        start = np.array([x, lo[1] + 0.004, lo[2] + 0.008])
-        travel = 0.088 - state + ctx.rng.uniform(0.01, 0.02)
-        approach = start + np.array([0, -0.05, 0.0])
-    else:
-        start = np.array([x, hi[1] - 0.012, hi[2] + 0.012])
-        travel = -(state + ctx.rng.uniform(0.01, 0.02))
-        approach = start + np.array([0, 0, 0.06])
-    yield from ctx.servo(approach, euler, tol=0.01, what="switch approach")
-    yield from ctx.servo(start, euler, speed=ctx.motion.slow_speed, tol=0.007, what="switch start")
-    yield from ctx.servo(start + travel * SWITCH_AXIS, euler, speed=ctx.motion.slow_speed, tol=0.008,
+    travel = (0.088 - state if up else state) + ctx.rng.uniform(0.015, 0.025)
+    direction = SWITCH_AXIS if up else -SWITCH_AXIS
+    yield from ctx.servo(contact + 0.06 * SWITCH_NORMAL, euler, tol=0.012, rot_tol=0.08, max_steps=100,
+                         what="before switch")  # fmt: skip
+    yield from ctx.servo(contact, euler, speed=ctx.motion.slow_speed, tol=0.007, what="switch start")
+    yield from ctx.servo(contact + travel * direction, euler, speed=ctx.motion.slow_speed, tol=0.008,
                          max_steps=50, what="switch", allow_timeout=True)  # fmt: skip
     tcp, _ = ctx.tcp()
-    retreat = np.array([0, -0.06, 0.0]) if up else np.array([0, -0.03, 0.06])
-    yield from ctx.servo(tcp + retreat, euler, tol=0.015, what="retreat")
+    yield from ctx.servo(tcp + 0.07 * SWITCH_NORMAL, euler, tol=0.015, what="retreat")

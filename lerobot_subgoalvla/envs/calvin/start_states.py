@@ -46,7 +46,10 @@ def sample_start_state(
     """
     check_task_name(task)
     for _ in range(max_tries):
-        scene_obs = _draw_scene(task, sim, np_random)
+        try:
+            scene_obs = _draw_scene(task, sim, np_random)
+        except _PlacementError:
+            continue
         sim.reset(robot_obs=EVAL_ROBOT_OBS, scene_obs=scene_obs)
         _settle(sim, np_random)
         if _prefix(task, sim, np_random) and is_feasible(task, sim):
@@ -55,6 +58,10 @@ def sample_start_state(
 
 
 # ------------------------------------------------------------------------------------------- drawing
+class _PlacementError(RuntimeError):
+    """The drawn surfaces had no room for a block; the caller draws again."""
+
+
 def _draw_scene(task: str, sim: CalvinSimulation, rng: np.random.Generator) -> np.ndarray:
     ctx = SkillContext(sim, rng, Motion(0.01, 0.005))
     layout = SceneLayout.from_context(ctx)
@@ -136,7 +143,7 @@ def _place(
             yaw = rng.uniform(*CABINET_YAW) if surface.startswith("slider") else rng.uniform(-np.pi, np.pi)
         if all(np.linalg.norm(pos[:2] - other[:2]) > 0.09 for other in placed):
             return np.array([*pos, 0.0, 0.0, yaw])
-    raise RuntimeError(f"could not place block slot {slot} on {surface}")
+    raise _PlacementError(f"could not place block slot {slot} on {surface}")
 
 
 def _settle(sim: CalvinSimulation, rng: np.random.Generator) -> None:
