@@ -224,7 +224,7 @@ def _draw_choices(rs: np.random.RandomState, count: int) -> np.ndarray:
     Legacy ``choice`` without replacement is ``permutation(34)[:5]``: a Fisher-Yates shuffle swapping item ``i``
     with ``j = random_interval(i)`` for i = 33..1 (masked rejection sampling on 32-bit draws). Legacy ``randint``
     with an array of highs draws each ``j`` with exactly that rejection rule, in order, so the random stream and
-    the result are identical to calling ``choice`` ``count`` times (tested), about 20x faster.
+    the result are identical to calling ``choice`` ``count`` times (tested), about 10x faster (benchmarks/calvin_chains.py).
     """
     n = len(_SHUFFLE_HIGHS) + 1
     # int32: 32-bit masked rejection, same stream as random_interval (8/16-bit dtypes would buffer: different)
