@@ -264,10 +264,12 @@ def prepare_pixel_values(
 # ------------------------------------------------------------------------------------------------------------------
 # The backbone module
 # ------------------------------------------------------------------------------------------------------------------
-def _load_base_vlm(name_or_path: str | None, tiny: TinyLlavaDims | None, dtype: torch.dtype) -> nn.Module:
-    """The VLM base model (no LM head), pretrained by name/path or built from the tiny config."""
+def _load_base_vlm(
+    name_or_path: str | None, config: PretrainedConfig | None, dtype: torch.dtype
+) -> nn.Module:
+    """The VLM base model (no LM head): pretrained by name/path, or randomly initialised from ``config``."""
     if name_or_path is None:
-        return AutoModel.from_config(build_tiny_llava_config(tiny or TinyLlavaDims()), dtype=dtype)
+        return AutoModel.from_config(config, dtype=dtype)
     full = AutoModelForImageTextToText.from_pretrained(name_or_path, dtype=dtype)
     if not hasattr(full, "model"):
         raise ValueError(
@@ -285,6 +287,8 @@ class VLMBackbone(nn.Module):
         freeze_vision_tower: freeze the vision encoder (no gradients, always eval mode), paper section 5.
         tiny: dimensions of the tiny model (only with ``name_or_path=None``).
         torch_dtype: weight dtype, "float32" | "bfloat16" | "float16" (or a torch.dtype).
+        vlm_config: with ``name_or_path=None``, build this architecture (random weights) instead of the tiny one;
+            used to size the paper/small architectures on the meta device without downloading anything.
     """
 
     def __init__(
@@ -294,12 +298,17 @@ class VLMBackbone(nn.Module):
         freeze_vision_tower: bool = True,
         tiny: TinyLlavaDims | None = None,
         torch_dtype: str | torch.dtype = "float32",
+        vlm_config: PretrainedConfig | None = None,
     ) -> None:
         super().__init__()
-        if name_or_path is not None and tiny is not None:
-            raise ValueError("VLMBackbone: tiny dimensions only apply when name_or_path is None")
+        if name_or_path is not None and (tiny is not None or vlm_config is not None):
+            raise ValueError("VLMBackbone: tiny / vlm_config only apply when name_or_path is None")
+        if tiny is not None and vlm_config is not None:
+            raise ValueError("VLMBackbone: give either tiny dimensions or a vlm_config, not both")
         dtype = _DTYPES[torch_dtype] if isinstance(torch_dtype, str) else torch_dtype
-        self.vlm = _load_base_vlm(name_or_path, tiny, dtype)
+        if name_or_path is None and vlm_config is None:
+            vlm_config = build_tiny_llava_config(tiny or TinyLlavaDims())
+        self.vlm = _load_base_vlm(name_or_path, vlm_config, dtype)
         for part in ("vision_tower", "multi_modal_projector", "language_model"):
             if not hasattr(self.vlm, part):
                 raise ValueError(f"{name_or_path!r} is not a LLaVA-style VLM: its base model lacks `{part}`")

@@ -77,15 +77,19 @@ class SubgoalVLAModel(nn.Module):
 
     Args:
         config: the policy config; ``input_features[observation.state]`` gives p, ``action_feature`` gives A.
+        backbone: an already built backbone to use instead of building ``config.backbone`` (e.g. an architecture
+            instantiated on the meta device by the benchmark); None builds it from the config.
     """
 
-    def __init__(self, config: SubgoalVLAConfig) -> None:
+    def __init__(self, config: SubgoalVLAConfig, backbone: VLMBackbone | None = None) -> None:
         super().__init__()
         self.config = config
         bb = config.backbone
-        self.backbone = VLMBackbone(
-            bb.name_or_path, bb.layer, bb.freeze_vision_tower, _tiny_dims(config), bb.torch_dtype
-        )
+        if backbone is None:
+            backbone = VLMBackbone(
+                bb.name_or_path, bb.layer, bb.freeze_vision_tower, _tiny_dims(config), bb.torch_dtype
+            )
+        self.backbone = backbone
         self.state_dim = config.input_features[STATE_KEY].shape[-1]
         self.action_dim = config.action_feature.shape[-1]
         width = self.backbone.hidden_size  # PCA works in the vision-language space (paper 4.1, table 5)
@@ -193,6 +197,52 @@ class SubgoalVLAModel(nn.Module):
         }
 
     @torch.no_grad()
+    def plan(
+        self, hidden: Tensor, mask: Tensor, history: Tensor, generator: torch.Generator | None = None
+    ) -> Tensor:
+        """Sample a subgoal trace with the planner (DDIM + CFG).
+
+        Args:
+            hidden: (B, S, E) and mask (B, S) from ``encode``; history: (B, h, p) normalised state history.
+            generator: RNG for the initial noise.
+
+        Returns:
+            (B, M, p) trace in the normalised state space.
+        """
+        if self.planner is None:
+            raise ValueError("plan() needs the planner; this model was built with use_planner=False (w/o SP)")
+        features, features_mask = self.planner_aggregator(history, hidden, mask)  # (B, h, E)
+        shape = (history.shape[0], self.config.subgoal_trace_len, self.state_dim)
+        return self.planner_objective.sample(
+            self.planner, shape, features, features_mask, generator=generator
+        )
+
+    @torch.no_grad()
+    def generate(
+        self,
+        hidden: Tensor,
+        mask: Tensor,
+        history: Tensor,
+        trace: Tensor | None,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """Sample an action chunk conditioned on ``[S_t, G]`` (or ``S_t`` alone without a planner).
+
+        Args:
+            hidden: (B, S, E) and mask (B, S) from ``encode``; history: (B, h, p); trace: (B, M, p) or None.
+            generator: RNG for the initial noise.
+
+        Returns:
+            (B, N, A) actions in the normalised action space.
+        """
+        queries = self._generator_queries(history, trace)
+        features, features_mask = self.generator_aggregator(queries, hidden, mask)  # (B, h[+M], E)
+        shape = (history.shape[0], self.config.chunk_size, self.action_dim)
+        return self.generator_objective.sample(
+            self.generator, shape, features, features_mask, generator=generator
+        )
+
+    @torch.no_grad()
     def sample_actions(
         self, batch: dict[str, Tensor], generator: torch.Generator | None = None
     ) -> tuple[Tensor, Tensor | None]:
@@ -207,19 +257,5 @@ class SubgoalVLAModel(nn.Module):
         """
         hidden, mask = self.encode(batch)
         history = batch[STATE_HISTORY_KEY]
-        b = history.shape[0]
-        trace = None
-        if self.planner is not None:
-            features, features_mask = self.planner_aggregator(history, hidden, mask)
-            shape = (b, self.config.subgoal_trace_len, self.state_dim)
-            trace = self.planner_objective.sample(
-                self.planner, shape, features, features_mask, generator=generator
-            )
-        features, features_mask = self.generator_aggregator(
-            self._generator_queries(history, trace), hidden, mask
-        )
-        shape = (b, self.config.chunk_size, self.action_dim)
-        actions = self.generator_objective.sample(
-            self.generator, shape, features, features_mask, generator=generator
-        )
-        return actions, trace
+        trace = None if self.planner is None else self.plan(hidden, mask, history, generator)
+        return self.generate(hidden, mask, history, trace, generator), trace

@@ -1,0 +1,281 @@
+"""SubgoalVLA model benchmark: parameters, FLOPs and latency per action chunk, per preset.
+
+Usage::
+
+    python benchmarks/policy_benchmark.py                                   # tiny/small/paper sizes, tiny latency
+    python benchmarks/policy_benchmark.py --presets tiny small --latency-presets tiny small --device cuda
+    python benchmarks/policy_benchmark.py --threads 1 --runs 50
+
+Nothing is downloaded. ``small`` and ``paper`` are instantiated from their architectures' known configs
+(``llava-hf/llava-interleave-qwen-0.5b-hf``: SigLIP-so400m-384 + Qwen1.5-0.5B; ``llava-hf/llava-1.5-7b-hf``:
+CLIP ViT-L/14-336 + LLaMA-2-7B) on the ``meta`` device for parameters and FLOPs, and with random weights on
+``--device`` for latency (latency does not depend on weight values). FLOPs are counted by
+``torch.utils.flop_counter`` for batch size 1: vision tower + projector, the k kept LLM layers, and each head as
+(cross-attention once) + (DiT forward x DDIM steps, doubled batch when classifier-free guidance is on).
+Latency is the median over ``--runs`` chunks of: backbone (``encode``), planner (``plan``), generator
+(``generate``), measured side by side in one process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+
+import torch
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
+from torch import nn
+from torch.utils.flop_counter import FlopCounterMode
+from transformers import CLIPVisionConfig, LlamaConfig, LlavaConfig, Qwen2Config, SiglipVisionConfig
+
+from lerobot_subgoalvla.policies.subgoalvla.backbone import VLMBackbone
+from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
+from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel, _tiny_dims
+
+STATE_DIM, ACTION_DIM = 15, 7
+
+
+def architecture(preset: str) -> LlavaConfig | None:
+    """The backbone architecture of a preset (facts from the checkpoints' config.json); None = tiny."""
+    if preset == "paper":  # llava-hf/llava-1.5-7b-hf
+        return LlavaConfig(
+            vision_config=CLIPVisionConfig(
+                hidden_size=1024,
+                intermediate_size=4096,
+                num_hidden_layers=24,
+                num_attention_heads=16,
+                image_size=336,
+                patch_size=14,
+                projection_dim=768,
+            ),
+            text_config=LlamaConfig(
+                vocab_size=32064,
+                hidden_size=4096,
+                intermediate_size=11008,
+                num_hidden_layers=32,
+                num_attention_heads=32,
+            ),
+            image_token_index=32000,
+        )
+    if preset == "small":  # llava-hf/llava-interleave-qwen-0.5b-hf
+        return LlavaConfig(
+            vision_config=SiglipVisionConfig(
+                hidden_size=1152,
+                intermediate_size=4304,
+                num_hidden_layers=26,
+                num_attention_heads=16,
+                image_size=384,
+                patch_size=14,
+                vision_use_head=False,
+            ),
+            text_config=Qwen2Config(
+                vocab_size=152000,
+                hidden_size=1024,
+                intermediate_size=2816,
+                num_hidden_layers=24,
+                num_attention_heads=16,
+                num_key_value_heads=16,
+                tie_word_embeddings=True,
+            ),
+            image_token_index=151646,
+            vision_feature_select_strategy="full",
+            vision_feature_layer=-1,
+        )
+    return None
+
+
+def make_config(preset: str) -> SubgoalVLAConfig:
+    features = {
+        "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,)),
+        "observation.images.static": PolicyFeature(type=FeatureType.VISUAL, shape=(3, 200, 200)),
+        "observation.images.gripper": PolicyFeature(type=FeatureType.VISUAL, shape=(3, 84, 84)),
+    }
+    actions = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
+    return SubgoalVLAConfig(preset=preset, input_features=features, output_features=actions)
+
+
+def build_model(preset: str, device: str) -> SubgoalVLAModel:
+    """The preset's model on ``device`` (``meta`` for sizes/FLOPs) without downloading weights."""
+    config = make_config(preset)
+    bb = config.backbone
+    with torch.device(device):
+        backbone = VLMBackbone(
+            None,
+            bb.layer,
+            bb.freeze_vision_tower,
+            tiny=_tiny_dims(config),
+            torch_dtype=bb.torch_dtype if device != "cpu" else "float32",
+            vlm_config=architecture(preset),
+        )
+        return SubgoalVLAModel(config, backbone=backbone).eval()
+
+
+def count(params: list[nn.Parameter] | nn.Module | None) -> int:
+    if params is None:
+        return 0
+    return sum(p.numel() for p in (params.parameters() if isinstance(params, nn.Module) else params))
+
+
+def parameter_row(model: SubgoalVLAModel) -> dict[str, float]:
+    bb = model.backbone
+    lm = bb.vlm.language_model
+    per_layer = count(lm.layers[0])
+    return {
+        "vision": count(bb.vision_parameters()),
+        "projector": count(bb.projector_parameters()),
+        "LLM kept (k layers)": count(bb.language_model_parameters()),
+        "LLM all (m layers)": count(bb.language_model_parameters())
+        + per_layer * (bb.num_llm_layers - bb.layer),
+        "PCA planner": count(model.planner_aggregator),
+        "PCA generator": count(model.generator_aggregator),
+        "DiT planner": count(model.planner),
+        "DiT generator": count(model.generator),
+        "total (built)": count(model),
+    }
+
+
+def fake_inputs(model: SubgoalVLAModel, device: str, batch: int = 1) -> dict[str, torch.Tensor]:
+    spec = model.backbone.input_spec
+    length = spec.num_image_tokens + model.config.backbone.max_instruction_tokens
+    ids = torch.zeros(batch, length, dtype=torch.long, device=device)
+    ids[:, : spec.num_image_tokens] = spec.image_token_id
+    return {
+        "observation.images.static": torch.rand(batch, 3, 200, 200, device=device),
+        "observation.images.gripper": torch.rand(batch, 3, 84, 84, device=device),
+        OBS_LANGUAGE_TOKENS: ids,
+        OBS_LANGUAGE_ATTENTION_MASK: torch.ones(batch, length, dtype=torch.long, device=device),
+        "observation.state_history": torch.randn(
+            batch, model.config.state_history_len, STATE_DIM, device=device
+        ),
+    }
+
+
+def flops(fn: Callable[[], object]) -> int:
+    with FlopCounterMode(display=False) as counter:
+        fn()
+    return counter.get_total_flops()
+
+
+def head_flops(model: SubgoalVLAModel, which: str, hidden: torch.Tensor, mask: torch.Tensor) -> int:
+    """One cross-attention pass + the DiT forwards of one DDIM sampling run (batch 1)."""
+    cfg = model.config
+    history = torch.zeros(1, cfg.state_history_len, STATE_DIM, device="meta")
+    if which == "planner":
+        aggregator, dit, objective, queries = (
+            model.planner_aggregator,
+            model.planner,
+            model.planner_objective,
+            history,
+        )
+        x = torch.zeros(1, cfg.subgoal_trace_len, STATE_DIM, device="meta")
+    else:
+        trace = torch.zeros(1, cfg.subgoal_trace_len, STATE_DIM, device="meta")
+        queries = model._generator_queries(history, trace if model.planner is not None else None)
+        aggregator, dit, objective = model.generator_aggregator, model.generator, model.generator_objective
+        x = torch.zeros(1, cfg.chunk_size, ACTION_DIM, device="meta")
+    features, features_mask = aggregator(queries, hidden, mask)
+    cfg_batch = 1 if objective.guidance_scale == 1.0 else 2
+    t = torch.zeros(cfg_batch, dtype=torch.long, device="meta")
+    dit_flops = flops(lambda: dit(x.expand(cfg_batch, -1, -1), t, features.expand(cfg_batch, -1, -1)))
+    return flops(lambda: aggregator(queries, hidden, mask)) + objective.num_inference_steps * dit_flops
+
+
+def flop_row(model: SubgoalVLAModel) -> dict[str, float]:
+    """FLOPs per chunk (batch 1). The backbone is split into vision+projector and k decoder layers because the
+    LLaVA placeholder scatter and the causal-mask helpers need real values (not available on the meta device)."""
+    vlm, spec = model.backbone.vlm, model.backbone.input_spec
+    pixels = torch.zeros(1, 3, spec.image_size, spec.image_size, device="meta")
+    length = spec.num_image_tokens + model.config.backbone.max_instruction_tokens
+    embeds = torch.zeros(1, length, model.backbone.hidden_size, device="meta")
+    mask = torch.ones(1, length, dtype=torch.long, device="meta")
+    vision = flops(lambda: vlm.get_image_features(pixel_values=pixels))
+    lm = vlm.language_model  # one decoder layer x k: the LLM's mask helpers need real values, not meta ones
+    positions = torch.arange(length, device="meta").unsqueeze(0)
+    rotary = lm.rotary_emb(embeds, positions)
+    layer = lm.layers[0]
+    llm = len(lm.layers) * flops(lambda: layer(embeds, position_ids=positions, position_embeddings=rotary))
+    hidden = embeds.float()
+    row = {"vision+projector": vision, "LLM": llm}
+    row["planner"] = head_flops(model, "planner", hidden, mask.bool()) if model.planner is not None else 0
+    row["generator"] = head_flops(model, "generator", hidden, mask.bool())
+    row["total"] = sum(row.values())
+    return row
+
+
+def synchronize(device: str) -> None:
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+
+
+def latency_row(model: SubgoalVLAModel, device: str, runs: int) -> dict[str, float]:
+    """Median milliseconds per chunk of backbone / planner / generator, measured in one loop."""
+    batch = fake_inputs(model, device)
+    times: dict[str, list[float]] = {"backbone": [], "planner": [], "generator": [], "chunk": []}
+    with torch.inference_mode():
+        for i in range(runs + 3):  # 3 warm-up chunks
+            synchronize(device)
+            t0 = time.perf_counter()
+            hidden, mask = model.encode(batch)
+            synchronize(device)
+            t1 = time.perf_counter()
+            history = batch["observation.state_history"]
+            trace = model.plan(hidden, mask, history) if model.planner is not None else None
+            synchronize(device)
+            t2 = time.perf_counter()
+            model.generate(hidden, mask, history, trace)
+            synchronize(device)
+            t3 = time.perf_counter()
+            if i >= 3:
+                for key, value in zip(times, (t1 - t0, t2 - t1, t3 - t2, t3 - t0), strict=True):
+                    times[key].append(1000 * value)
+    return {key: statistics.median(values) for key, values in times.items()}
+
+
+def print_table(title: str, rows: dict[str, dict[str, float]], scale: float, unit: str) -> None:
+    columns = list(next(iter(rows.values())))
+    print(f"\n{title}")
+    print("| preset | " + " | ".join(columns) + " |")
+    print("|---" * (len(columns) + 1) + "|")
+    for preset, row in rows.items():
+        print(f"| {preset} | " + " | ".join(f"{row[c] / scale:,.3f}{unit}" for c in columns) + " |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--presets", nargs="+", default=["tiny", "small", "paper"], choices=["tiny", "small", "paper"]
+    )
+    parser.add_argument("--latency-presets", nargs="*", default=["tiny"], choices=["tiny", "small", "paper"])
+    parser.add_argument("--device", default="cpu", help="device for the latency runs (cpu, cuda)")
+    parser.add_argument("--runs", type=int, default=30, help="chunks timed per preset (median reported)")
+    parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads on CPU")
+    args = parser.parse_args()
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+    torch.fx.experimental._config.meta_nonzero_assume_all_nonzero = (
+        True  # meta tensors: count the LLaVA scatter as if all were set
+    )
+    params, flop_rows = {}, {}
+    for preset in args.presets:
+        model = build_model(preset, "meta")
+        label = f"{preset} (k={model.backbone.layer}/m={model.backbone.num_llm_layers})"
+        params[label] = parameter_row(model)
+        flop_rows[label] = flop_row(model)
+    print_table("Parameters (millions)", params, 1e6, "M")
+    print_table("FLOPs per action chunk, batch 1 (GFLOPs)", flop_rows, 1e9, "")
+    latency = {}
+    for preset in args.latency_presets:
+        torch.manual_seed(0)
+        latency[f"{preset} ({args.device}, {torch.get_num_threads()} thr)"] = latency_row(
+            build_model(preset, args.device), args.device, args.runs
+        )
+    if latency:
+        print_table(f"Latency per chunk, median of {args.runs} (ms)", latency, 1.0, "")
+
+
+if __name__ == "__main__":
+    main()
