@@ -220,6 +220,10 @@ class CalvinEnv(gym.Env):
                 gripper_size=self.gripper_size,
                 action_mode=self.action_mode,
             )
+        # CALVIN keeps the previous episode's gripper command across resets (spec 3.8), so robot_obs[14] of the
+        # first frame would depend on episode order. Reset it to the start state's (open unless robot_obs says
+        # otherwise): the same seed then gives the same episode, and chain shards are order-independent.
+        self._sim.robot.gripper_action = 1 if robot_obs is None or robot_obs[14] > 0 else -1
         if self.is_chain_mode:
             self._chain_id = self._pick_chain(options.get("chain_id"))
             chain = self._chain(self._chain_id)
