@@ -164,7 +164,10 @@ class PackStateSequencesProcessorStep(ProcessorStep):
             return transition
         observation = dict(observation)
         state = observation[STATE_KEY]
-        parts = [state.unsqueeze(-2)] + [observation.pop(key) for key in present]  # (B, 1, p), (B, *, p) ...
+        sequences = [torch.as_tensor(observation.pop(key)) for key in present]
+        # to_batch_processor batches 1-D states but not these 2-D columns: batch an unbatched (L, p) here
+        sequences = [seq.unsqueeze(0) if seq.ndim == state.ndim else seq for seq in sequences]
+        parts = [state.unsqueeze(-2), *sequences]  # (B, 1, p), (B, h, p), (B, M, p)
         rows = [[STATE_KEY, 1]] + [
             [key, int(part.shape[-2])] for key, part in zip(present, parts[1:], strict=True)
         ]
