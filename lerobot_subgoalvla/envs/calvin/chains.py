@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS, TASK_NAMES
+from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS, TASK_NAMES, check_task_name
 
 # Per-episode results live in results.py; re-exported here because chains.py is the env's seam (DESIGN.md).
 from lerobot_subgoalvla.envs.calvin.results import (
@@ -224,7 +224,8 @@ def _draw_choices(rs: np.random.RandomState, count: int) -> np.ndarray:
     Legacy ``choice`` without replacement is ``permutation(34)[:5]``: a Fisher-Yates shuffle swapping item ``i``
     with ``j = random_interval(i)`` for i = 33..1 (masked rejection sampling on 32-bit draws). Legacy ``randint``
     with an array of highs draws each ``j`` with exactly that rejection rule, in order, so the random stream and
-    the result are identical to calling ``choice`` ``count`` times (tested), about 10x faster (benchmarks/calvin_chains.py).
+    the result are identical to calling ``choice`` ``count`` times (tested), about 10x faster
+    (``benchmarks/calvin_chains.py``).
     """
     n = len(_SHUFFLE_HIGHS) + 1
     # int32: 32-bit masked rejection, same stream as random_interval (8/16-bit dtypes would buffer: different)
@@ -328,7 +329,12 @@ class Chain:
         scene_obs = np.asarray(data["scene_obs"], dtype=np.float64)
         if scene_obs.shape != (24,) or len(data["tasks"]) != CHAIN_LENGTH:
             raise ValueError(f"chain {data.get('chain_id')}: expected 5 tasks and a (24,) scene_obs")
-        return cls(dict(data["initial_state"]), tuple(data["tasks"]), scene_obs)
+        if set(data["initial_state"]) != set(SYMBOLIC_VALUES):
+            raise ValueError(
+                f"chain {data.get('chain_id')}: initial_state keys must be {list(SYMBOLIC_VALUES)}"
+            )
+        tasks = tuple(check_task_name(task) for task in data["tasks"])
+        return cls({k: data["initial_state"][k] for k in SYMBOLIC_VALUES}, tasks, scene_obs)
 
 
 @functools.lru_cache(maxsize=4)
@@ -365,7 +371,10 @@ def load_chains(path: Path) -> dict[int, Chain]:
     """Chain id -> chain from a file written by :func:`save_chains` / ``subgoalvla-calvin-chains``."""
     try:
         entries = json.loads(Path(path).read_text())
-        return {int(e["chain_id"]): Chain.from_dict(e) for e in entries}
+        chains = {int(e["chain_id"]): Chain.from_dict(e) for e in entries}
+        if len(chains) != len(entries):
+            raise ValueError("a chain id appears twice")
+        return chains
     except FileNotFoundError:
         raise FileNotFoundError(
             f"Chains file {path} not found; create it with subgoalvla-calvin-chains"
