@@ -228,3 +228,30 @@ def test_malformed_info_names_the_missing_key() -> None:
     del broken["scene_info"]["doors"]
     with pytest.raises(ValueError, match="scene_info.doors"):
         TaskOracle().is_completed("open_drawer", info, broken)
+
+
+def test_oracle_reads_the_simulator_info() -> None:
+    """The seam with CalvinSimulation.get_info(): teleport doors, lights and blocks between two infos."""
+    from lerobot_subgoalvla.envs.calvin.chains import EVAL_ROBOT_OBS, scene_obs_for_state
+    from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+
+    state = {"led": 0, "lightbulb": 0, "slider": "right", "drawer": "closed", "red_block": "table",
+             "blue_block": "slider_left", "pink_block": "table", "grasped": 0}  # fmt: skip
+    start_obs = scene_obs_for_state(state)
+    end_obs = start_obs.copy()
+    end_obs[[0, 1, 3, 4, 5]] = [0.2, 0.2, 0.088, 1.0, 1.0]  # slider left, drawer open, both lights on
+    end_obs[6] += 0.12  # red block 12 cm to the right (+x)
+    end_obs[23] -= np.pi / 2  # pink block turned 90 degrees clockwise
+    idle = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+    infos = []
+    with CalvinSimulation(cameras=False) as sim:
+        for obs in (start_obs, end_obs):
+            sim.reset(EVAL_ROBOT_OBS, obs)
+            for _ in range(5):
+                sim.step(idle)
+            infos.append(sim.get_info())
+    assert TaskOracle().completed_tasks(*infos) == {
+        "move_slider_left", "open_drawer", "turn_on_lightbulb", "turn_on_led", "push_red_block_right",
+        "rotate_pink_block_right",
+    }  # fmt: skip
+    assert TaskOracle().completed_tasks(infos[0], infos[0]) == set()
