@@ -155,18 +155,20 @@ def check_frame(path: Path, keys: Sequence[str] = CORE_KEYS) -> dict[str, np.nda
             f"{path}: frame file missing although ep_start_end_ids.npy covers it; restore the file or fix the segment table"
         )
     try:
-        with np.load(path, allow_pickle=False) as npz:
-            missing = [key for key in keys if key not in npz.files]
-            if missing:
-                raise ValueError(
-                    f"{path}: missing key(s) {missing} (has {sorted(npz.files)}); re-export the frame with all "
-                    f"keys {list(keys)}"
-                )
-            arrays = {key: npz[key] for key in keys}
-    except (zipfile.BadZipFile, OSError, EOFError, zlib_error) as error:
+        with zipfile.ZipFile(path) as archive:  # an npz is a zip of .npy members
+            members = {name.removesuffix(".npy") for name in archive.namelist()}
+        missing = [key for key in keys if key not in members]
+        if not missing:
+            with np.load(path, allow_pickle=False) as npz:
+                arrays = {key: npz[key] for key in keys}
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError, zlib_error) as error:
         raise ValueError(
             f"{path}: corrupt npz ({error}); re-download or regenerate this frame file"
         ) from error
+    if missing:
+        raise ValueError(
+            f"{path}: missing key(s) {missing} (has {sorted(members)}); re-export the frame with all keys {list(keys)}"
+        )
     for key, array in arrays.items():
         spec = NPZ_SCHEMA[key]
         if not spec.matches(array):
@@ -207,8 +209,12 @@ class CalvinSplit:
             raw = _load_pickled(scene_path)
             self.scene_info = {str(k): (int(v[0]), int(v[1])) for k, v in dict(raw).items()}
         else:
-            first, last = int(self.segments[:, 0].min(initial=0)), int(self.segments[:, 1].max(initial=0))
-            self.scene_info = {VALIDATION_SCENE: (first, last)}
+            covered = (
+                (int(self.segments[:, 0].min()), int(self.segments[:, 1].max()))
+                if len(self.segments)
+                else (0, -1)
+            )
+            self.scene_info = {VALIDATION_SCENE: covered}
 
     @property
     def name(self) -> str:

@@ -136,7 +136,7 @@ def convert_split(
     split_dir: Path,
     repo_id: str,
     root: Path,
-    options: ConversionOptions,
+    options: ConversionOptions = ConversionOptions(),  # noqa: B008 - frozen dataclass, safe as a default
     workers: int = 1,
     episodes_per_part: int = 64,
     max_episodes: int | None = None,
@@ -271,3 +271,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         logger.info(
             "%s: %d episodes, %d frames at %s", name, dataset.num_episodes, dataset.num_frames, dataset.root
         )
+
+
+if __name__ == "__main__":
+    main()

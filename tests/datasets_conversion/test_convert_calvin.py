@@ -1,0 +1,197 @@
+"""Converter: LANG/ALL episodes, the data contract, options in meta, --verify, CLI errors, kill-and-resume."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from native_fixtures import write_native_split
+
+from lerobot_subgoalvla.datasets_conversion.calvin_format import CalvinSplit, frame_filename
+from lerobot_subgoalvla.datasets_conversion.calvin_quirks import PLAY_TASK, canonicalize_scene_obs
+from lerobot_subgoalvla.datasets_conversion.convert_calvin import convert, main
+from lerobot_subgoalvla.datasets_conversion.lerobot_parts import ConversionOptions
+from lerobot_subgoalvla.datasets_conversion.subgoal_traces import state_history, subgoal_traces
+from lerobot_subgoalvla.datasets_conversion.verify_dataset import verify_dataset
+
+SEGMENTS = [(0, 29), (40, 74)]
+WINDOWS = [
+    (0, 20, "open the drawer", "open_drawer"),
+    (10, 35, "press the button", "turn_on_led"),  # crosses the segment end 29 -> clamped
+    (45, 70, "lift the red block", "lift_red_block_table"),
+]
+SCENES = {"calvin_scene_A": (0, 74)}
+
+
+@pytest.fixture(scope="module")
+def source(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("calvin_src")
+    write_native_split(root / "training", SEGMENTS, WINDOWS, SCENES, static=64, gripper=64, seed=1)
+    write_native_split(root / "validation", [(0, 19)], WINDOWS[:1], static=64, gripper=64, seed=2)
+    return root
+
+
+def _columns(dataset, key: str) -> np.ndarray:
+    return np.asarray(dataset.hf_dataset.with_format("numpy")[key])
+
+
+def test_lang_mode_contract(source: Path, tmp_path: Path) -> None:
+    options = ConversionOptions(image_format="image", trace_start=3, trace_length=4, history_length=5)
+    dataset = convert(source, "local/lang", tmp_path / "lang", options=options, episodes_per_part=2)[
+        "training"
+    ]
+    assert dataset.num_episodes == 3
+    lengths = np.bincount(_columns(dataset, "episode_index"))
+    np.testing.assert_array_equal(lengths, [21, 20, 26])  # window 2 clamped to [10, 29]
+    frame_ids = _columns(dataset, "calvin_frame_index").reshape(-1)
+    np.testing.assert_array_equal(frame_ids[:21], np.arange(0, 21))
+    np.testing.assert_array_equal(frame_ids[21:41], np.arange(10, 30))
+    state = _columns(dataset, "observation.state")
+    np.testing.assert_array_equal(state[:, 0], frame_ids.astype(np.float32))  # source robot_obs[0] == id
+    split = CalvinSplit(source / "training")
+    raw = split.load_frames(frame_ids[41:].tolist())
+    np.testing.assert_array_equal(state[41:], raw["robot_obs"].astype(np.float32))
+    np.testing.assert_array_equal(_columns(dataset, "action")[41:], raw["rel_actions"].astype(np.float32))
+    expected_env = canonicalize_scene_obs(raw["scene_obs"], ("pink", "blue", "red")).astype(np.float32)
+    np.testing.assert_array_equal(_columns(dataset, "observation.environment_state")[41:], expected_env)
+    history, trace = (
+        _columns(dataset, "observation.state_history"),
+        _columns(dataset, "observation.subgoal_trace"),
+    )
+    assert history.shape == (67, 5, 15) and trace.shape == (67, 4, 15)
+    np.testing.assert_array_equal(history[21:41], state_history(state[21:41], 5))
+    np.testing.assert_array_equal(trace[21:41], subgoal_traces(state[21:41], 3, 4))
+    np.testing.assert_array_equal(trace[40, :, 0], [29, 29, 29, 29])  # clamped to the episode's last frame
+    assert [dataset[i]["task"] for i in (0, 21, 41)] == [
+        "open the drawer",
+        "press the button",
+        "lift the red block",
+    ]
+    info = json.loads((tmp_path / "lang" / "meta" / "info.json").read_text())
+    sub = info["subgoalvla"]
+    assert (sub["trace_start"], sub["trace_length"], sub["history_length"]) == (3, 4, 5)
+    assert sub["block_order"] == ["red", "blue", "pink"] and sub["mode"] == "lang"
+    assert info["features"]["observation.images.static"]["dtype"] == "image"
+    assert (tmp_path / "lang" / "README.md").is_file()
+    assert not (tmp_path / "lang.partial").exists()
+
+
+def test_all_mode_and_both_splits(source: Path, tmp_path: Path) -> None:
+    options = ConversionOptions(image_format="image", mode="all")
+    out = convert(source, "local/all", tmp_path / "all", split="both", options=options)
+    training, validation = out["training"], out["validation"]
+    assert training.root == tmp_path / "all" / "training" and training.repo_id == "local/all-training"
+    np.testing.assert_array_equal(np.bincount(_columns(training, "episode_index")), [30, 35])
+    assert validation.num_episodes == 1 and validation.num_frames == 20
+    tasks = [training[i]["task"] for i in (0, 9, 10, 21, 29, 30, 45)]
+    assert tasks == ["open the drawer", "open the drawer", "press the button", "press the button",
+                     "press the button", PLAY_TASK, "lift the red block"]  # fmt: skip
+
+
+def test_verify_video_dataset(source: Path, tmp_path: Path) -> None:
+    dataset = convert(source, "local/video", tmp_path / "video", verify=True, max_episodes=2)["training"]
+    assert dataset.meta.features["observation.images.static"]["dtype"] == "video"
+    assert sorted(p.name for p in (tmp_path / "video" / "videos").iterdir()) == [
+        "observation.images.gripper", "observation.images.static"]  # fmt: skip
+    split = CalvinSplit(source / "training")
+    from lerobot_subgoalvla.datasets_conversion.convert_calvin import select_episodes
+
+    report = verify_dataset(
+        dataset, split, select_episodes(split, "lang", 2), ConversionOptions(), image_samples=8
+    )
+    assert report.frames == 41 and report.image_frames_checked == 8
+    assert 0 < report.image_mean_abs_error < 0.04  # lossy AV1, within tolerance
+    item = dataset[5]
+    assert item["observation.images.static"].shape == (3, 64, 64)
+
+
+def _run_main(argv: list[str], caplog: pytest.LogCaptureFixture) -> str:
+    caplog.clear()
+    with caplog.at_level(logging.ERROR), pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 1
+    errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+    assert len(errors) == 1 and "\n" not in errors[0]
+    return errors[0]
+
+
+def test_cli_errors(source: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch) -> None:
+    base = ["--repo-id", "local/x", "--image-format", "image"]
+    message = _run_main([str(tmp_path / "missing"), *base, "--root", str(tmp_path / "o1")], caplog)
+    assert "missing/training: split folder not found" in message
+    (tmp_path / "exists").mkdir()
+    message = _run_main([str(source), *base, "--root", str(tmp_path / "exists")], caplog)
+    assert "output folder already exists; pass --overwrite" in message
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    message = _run_main([str(source), *base, "--root", str(tmp_path / "o2"), "--push-to-hub"], caplog)
+    assert "HF_HUB_OFFLINE" in message and not (tmp_path / "o2").exists()
+
+
+def test_corrupt_frame_mid_conversion_leaves_nothing_complete(tmp_path: Path, caplog) -> None:
+    src = tmp_path / "src"
+    write_native_split(src / "training", [(0, 19), (30, 49)], (), None, static=64, gripper=64)
+    (src / "training" / frame_filename(35)).write_bytes(b"garbage")  # inside a segment: not checked up front
+    argv = [
+        str(src),
+        "--repo-id",
+        "local/x",
+        "--mode",
+        "all",
+        "--image-format",
+        "image",
+        "--root",
+        str(tmp_path / "o"),
+    ]
+    message = _run_main([*argv, "--episodes-per-part", "1"], caplog)
+    assert "episode_0000035.npz: corrupt npz" in message
+    assert not (tmp_path / "o").exists() and (tmp_path / "o.partial" / "parts" / "part-000000").is_dir()
+    message = _run_main([*argv, "--episodes-per-part", "1"], caplog)
+    assert "pass --resume" in message
+    message = _run_main([*argv, "--episodes-per-part", "2", "--resume"], caplog)
+    assert "different options (episodes_per_part)" in message
+
+
+def _dataset_arrays(dataset) -> dict[str, np.ndarray]:
+    table = dataset.hf_dataset.with_format("numpy")
+    keys = ["observation.state", "observation.state_history", "observation.subgoal_trace", "action",
+            "observation.environment_state", "calvin_frame_index", "episode_index", "index", "task_index"]  # fmt: skip
+    keys += ["observation.images.static", "observation.images.gripper"]  # PNG frames decoded by datasets
+    return {key: np.asarray(table[key]) for key in keys}
+
+
+def test_kill_and_resume_gives_identical_dataset(tmp_path: Path) -> None:
+    src = tmp_path / "src"
+    segments = [(i * 30, i * 30 + 19) for i in range(8)]
+    write_native_split(src / "training", segments, (), None, static=64, gripper=64)
+    root = tmp_path / "killed"
+    argv = [sys.executable, "-m", "lerobot_subgoalvla.datasets_conversion.convert_calvin", str(src),
+            "--repo-id", "local/k", "--root", str(root), "--mode", "all", "--image-format", "image",
+            "--episodes-per-part", "1"]  # fmt: skip
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONPATH": os.pathsep.join(sys.path)}
+    process = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    parts = root.with_name("killed.partial") / "parts"
+    deadline = time.monotonic() + 300
+    while not (parts / "part-000002").is_dir() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    assert not root.exists(), "the conversion finished before it could be killed"
+    finished = sorted(p.name for p in parts.iterdir() if not p.name.endswith(".tmp"))
+    assert 3 <= len(finished) < 8
+    options = ConversionOptions(image_format="image", mode="all")
+    resumed = convert(src, "local/k", root, options=options, episodes_per_part=1, resume=True)["training"]
+    reference = convert(src, "local/k", tmp_path / "reference", options=options, episodes_per_part=1)[
+        "training"
+    ]
+    got, want = _dataset_arrays(resumed), _dataset_arrays(reference)
+    assert resumed.num_episodes == 8 and resumed.num_frames == 8 * 20
+    for key in want:
+        np.testing.assert_array_equal(got[key], want[key], err_msg=key)
