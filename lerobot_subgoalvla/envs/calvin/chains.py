@@ -134,11 +134,13 @@ def _symbolic_tasks() -> dict[str, tuple[tuple[Alternative, ...], int]]:
         _alt({b: "grasped", "slider": side, "grasped": 1}, {b: f"slider_{side}", "grasped": 0})
         for b in blocks for side in ("right", "left")), 7)  # fmt: skip
     table["place_in_drawer"] = (tuple(
-        _alt({b: "grasped", "drawer": "open", "grasped": 1}, {b: "drawer", "grasped": 0}) for b in blocks), 7)  # fmt: skip
+        _alt({b: "grasped", "drawer": "open", "grasped": 1}, {b: "drawer", "grasped": 0})
+        for b in blocks), 7)  # fmt: skip
     pairs = list(itertools.permutations(blocks, 2))
     table["stack_block"] = (tuple(
         _alt({top: "grasped", bottom: "table", "grasped": 1},
-             {top: "stacked_top", bottom: "stacked_bottom", "grasped": 0}) for top, bottom in pairs), 10)  # fmt: skip
+             {top: "stacked_top", bottom: "stacked_bottom", "grasped": 0})
+        for top, bottom in pairs), 10)  # fmt: skip
     table["unstack_block"] = (tuple(
         _alt({top: "stacked_top", bottom: "stacked_bottom", "grasped": 0}, {top: "table", bottom: "table"})
         for top, bottom in pairs), 11)  # fmt: skip
@@ -286,10 +288,10 @@ def _plain(value: Any) -> int | str:
 
 def scene_obs_for_state(state: Mapping[str, Any]) -> np.ndarray:
     """The (24,) ``scene_obs`` of a symbolic initial state (spec 4.2; blocks in red, blue, pink slots)."""
-    for color in BLOCK_COLORS:
-        if state[f"{color}_block"] not in SYMBOLIC_VALUES[f"{color}_block"]:
+    for key in (f"{color}_block" for color in BLOCK_COLORS):
+        if state[key] not in SYMBOLIC_VALUES[key]:
             raise ValueError(
-                f"{color}_block={state[f'{color}_block']!r} is not an initial value {SYMBOLIC_VALUES[f'{color}_block']}"
+                f"{key}={state[key]!r} is not an initial value; use one of {SYMBOLIC_VALUES[key]}"
             )
     rs = np.random.RandomState(state_seed(state))
     table_slots = [np.array(p) for p in _BLOCK_TABLE]

@@ -71,8 +71,12 @@ class LongHorizonReport:
     task_info: Mapping[str, Mapping[str, int]]
 
     def to_json(self) -> dict[str, Any]:
-        return {"avg_seq_len": self.avg_seq_len, "chain_sr": {str(k): v for k, v in self.chain_sr.items()},
-                "task_info": {t: dict(v) for t, v in self.task_info.items()}, "num_chains": self.num_chains}  # fmt: skip
+        return {
+            "avg_seq_len": self.avg_seq_len,
+            "chain_sr": {str(k): v for k, v in self.chain_sr.items()},
+            "task_info": {t: dict(v) for t, v in self.task_info.items()},
+            "num_chains": self.num_chains,
+        }
 
 
 def summarize(results: Sequence[EpisodeResult]) -> LongHorizonReport:
@@ -95,8 +99,11 @@ def summarize(results: Sequence[EpisodeResult]) -> LongHorizonReport:
 
 def format_report(report: LongHorizonReport) -> str:
     """The report as CALVIN prints it: average length, ``k: xx.x%`` rows, per-task ``success / total``."""
-    lines = [f"Evaluated chains: {report.num_chains}", f"Average successful sequence length: {report.avg_seq_len:.3f}",
-             "Success rates for k instructions in a row:"]  # fmt: skip
+    lines = [
+        f"Evaluated chains: {report.num_chains}",
+        f"Average successful sequence length: {report.avg_seq_len:.3f}",
+        "Success rates for k instructions in a row:",
+    ]
     lines += [f"  LH-{k}: {sr * 100:5.1f}%" for k, sr in report.chain_sr.items()]
     width = max((len(t) for t in report.task_info), default=0)
     for task, info in report.task_info.items():
