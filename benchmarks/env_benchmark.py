@@ -1,0 +1,144 @@
+"""Simulator throughput: control steps per second with both cameras, rendering share, LH-MTLC wall-time estimate.
+
+Measures, side by side in one run and on ONE core (``--core``, via ``os.sched_setaffinity``):
+
+* ``physics``: ``CalvinSimulation.step`` (IK + 8 x stepSimulation at 240 Hz + button/switch logic);
+* ``render``: ``render_cameras()`` (static 200 x 200 + gripper 84 x 84, TinyRenderer on the CPU);
+* ``total`` = physics + render per 30 Hz control step, as an evaluation rollout needs it.
+
+Times are CPU time of the calling thread (``time.thread_time``; pybullet DIRECT runs in-process), i.e. what a step
+costs on a dedicated core, so that a loaded shared machine still gives meaningful numbers; the load average is
+printed for context.
+
+From the total it estimates the simulator-only wall time of the 1000-chain LH-MTLC evaluation (calvin-spec 4.3):
+upper bound 1000 x 5 x 360 steps (every subtask times out), and a typical case in which each chain completes
+``--typical-length`` subtasks of ``--typical-subtask-steps`` steps and then fails one at 360 steps. Policy inference
+is not included.
+
+Usage:
+    python benchmarks/env_benchmark.py                          # procedural (+ calvin_D if assets are found)
+    python benchmarks/env_benchmark.py --steps 200 --workers 1 4 16 --assets-dir ~/calvin_env
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import pybullet
+
+from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+
+EVAL_ROBOT_OBS = np.array(
+    [0.02586889, -0.2313129, 0.5712808, 3.09045411, -0.02908596, 1.50013585, 0.07999963, -1.21779124, 1.03987629,
+     2.11978254, -2.34205014, -0.87015899, 1.64119093, 0.55344928, 1.0]
+)  # fmt: skip
+CHAINS, SUBTASKS, MAX_STEPS = 1000, 5, 360
+
+
+def _scene_obs() -> np.ndarray:
+    obs = np.zeros(24)
+    obs[6:24] = [0.05, -0.12, 0.46, 0, 0, 1.3, 0.07, 0.092, 0.461, 0, 0, 1.6, 0.23, -0.12, 0.46, 0, 0, 1.9]
+    return obs
+
+
+def measure(scene: str, assets_dir: Path | None, steps: int) -> dict[str, float]:
+    """Median CPU ms per control step for physics and rendering, over ``steps`` steps of a smooth random walk."""
+    rng = np.random.default_rng(0)
+    with CalvinSimulation(scene, assets_dir=assets_dir) as sim:
+        sim.reset(robot_obs=EVAL_ROBOT_OBS, scene_obs=_scene_obs())
+        physics, render = [], []
+        action = np.zeros(7)
+        for t in range(steps):
+            action[:6] = np.clip(0.8 * action[:6] + 0.3 * rng.standard_normal(6), -1, 1)
+            action[6] = 1.0 if (t // 40) % 2 == 0 else -1.0
+            t0 = time.thread_time()
+            sim.step(action)
+            t1 = time.thread_time()
+            sim.render_cameras()
+            t2 = time.thread_time()
+            physics.append(t1 - t0)
+            render.append(t2 - t1)
+    phys_ms, render_ms = 1000 * statistics.median(physics), 1000 * statistics.median(render)
+    total_ms = phys_ms + render_ms
+    return {
+        "physics_ms": phys_ms,
+        "render_ms": render_ms,
+        "total_ms": total_ms,
+        "steps_per_s": 1000 / total_ms,
+        "physics_only_steps_per_s": 1000 / phys_ms,
+        "render_share": render_ms / total_ms,
+    }
+
+
+def lh_mtlc_hours(
+    steps_per_s: float, workers: int, typical_length: float, typical_subtask_steps: int
+) -> tuple:
+    """(upper bound, typical) simulator hours of the 1000-chain evaluation on ``workers`` single-core workers."""
+    upper_steps = CHAINS * SUBTASKS * MAX_STEPS
+    per_chain = typical_length * typical_subtask_steps + (MAX_STEPS if typical_length < SUBTASKS else 0)
+    typical_steps = CHAINS * per_chain
+    rate = steps_per_s * workers
+    return upper_steps / rate / 3600, typical_steps / rate / 3600
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--steps", type=int, default=120, help="control steps measured per scene")
+    parser.add_argument("--core", type=int, default=0, help="CPU core to pin to (-1: no pinning)")
+    parser.add_argument(
+        "--workers", type=int, nargs="+", default=[1, 4, 16], help="worker counts for the estimate"
+    )
+    parser.add_argument(
+        "--assets-dir", type=Path, default=None, help="calvin_env clone (default: $CALVIN_ENV_ASSETS)"
+    )
+    parser.add_argument(
+        "--typical-length", type=float, default=3.0, help="completed subtasks per chain (typical)"
+    )
+    parser.add_argument("--typical-subtask-steps", type=int, default=90, help="steps of a completed subtask")
+    args = parser.parse_args()
+    if args.core >= 0:
+        os.sched_setaffinity(0, {args.core})
+    assets = args.assets_dir or os.environ.get("CALVIN_ENV_ASSETS")
+    default_assets = Path(__file__).resolve().parents[2] / "shared" / "calvin_env_assets"
+    if assets is None and (default_assets / "data").is_dir():
+        assets = default_assets
+    scenes = ["procedural"] + (["calvin_D"] if assets is not None else [])
+
+    print(
+        f"pybullet numpy support: {bool(pybullet.isNumpyEnabled())}; pinned core: {args.core}; steps: {args.steps}"
+    )
+    print(f"load average: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (timings scale with contention)")
+    header = f"{'scene':<11} {'physics ms':>10} {'render ms':>10} {'total ms':>9} {'steps/s':>8} {'phys-only/s':>11} {'render %':>8}"
+    print(header)
+    print("-" * len(header))
+    results = {}
+    for scene in scenes:
+        r = measure(scene, Path(assets) if assets else None, args.steps)
+        results[scene] = r
+        print(
+            f"{scene:<11} {r['physics_ms']:>10.2f} {r['render_ms']:>10.2f} {r['total_ms']:>9.2f} "
+            f"{r['steps_per_s']:>8.1f} {r['physics_only_steps_per_s']:>11.1f} {100 * r['render_share']:>7.0f}%"
+        )
+    print()
+    print(
+        f"LH-MTLC simulator wall time (1000 chains; upper bound 5 x 360 steps; typical {args.typical_length:g} "
+        f"x {args.typical_subtask_steps} steps + one 360-step failure), hours, with cameras:"
+    )
+    print(f"{'scene':<11} {'workers':>7} {'upper h':>8} {'typical h':>9}")
+    for scene, r in results.items():
+        for workers in args.workers:
+            upper, typical = lh_mtlc_hours(
+                r["steps_per_s"], workers, args.typical_length, args.typical_subtask_steps
+            )
+            print(f"{scene:<11} {workers:>7} {upper:>8.2f} {typical:>9.2f}")
+
+
+if __name__ == "__main__":
+    main()
