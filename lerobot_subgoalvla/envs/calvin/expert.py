@@ -121,19 +121,21 @@ def _place_script(ctx: SkillContext, layout: SceneLayout, where: str) -> Skill:
         lo, hi = layout.cabinet_reach_interval(ctx)
         x = ctx.rng.uniform(lo, hi) if hi > lo else 0.5 * (lo + hi)
         y = layout.shelf_y + ctx.rng.uniform(-0.01, 0.01)
-        return scripts.place_on(ctx, block, np.array([x, y]), layout.shelf_top(ctx, x, y),
-                                via_y=layout.cabinet_front_y - 0.05)  # fmt: skip
+        surface = layout.shelf_top(ctx, x, y)
+        return scripts.place_on(ctx, block, np.array([x, y]), surface, tilt=ctx.rng.uniform(0.95, 1.05))
     if where == "drawer":
-        x, y, floor_z = layout.drawer_drop_point(ctx)
-        return scripts.place_on(ctx, block, np.array([x, y]), floor_z, via_y=None)
+        yaw = ctx.tcp()[1][2]  # the hand is ~0.22 m wide along the closing axis (sin yaw, -cos yaw)
+        x, y, floor_z = layout.drawer_drop_point(
+            ctx, 0.11 * abs(np.cos(yaw)) + 0.05 * abs(np.sin(yaw)) + 0.01
+        )
+        return scripts.place_on(ctx, block, np.array([x, y]), floor_z)
     others = [b for b in ctx.block_uids if b != block and _on_table(ctx, b)]
     if not others:
         raise ExpertFailureError("stack_block: no other block rests on the table")
     tcp, _ = ctx.tcp()
     base = min(others, key=lambda b: float(np.linalg.norm(ctx.block_pose(b)[0][:2] - tcp[:2])))
     base_pos, _ = ctx.block_pose(base)
-    return scripts.place_on(ctx, block, base_pos[:2] + ctx.jitter(0.004, 2), base_pos[2] + scripts.BLOCK_HALF,
-                            via_y=None)  # fmt: skip
+    return scripts.place_on(ctx, block, base_pos[:2] + ctx.jitter(0.004, 2), base_pos[2] + scripts.BLOCK_HALF)
 
 
 # --------------------------------------------------------------------------------- symbolic predicates

@@ -101,14 +101,15 @@ class SceneLayout:
     def block_in_drawer(self, ctx: SkillContext, block: str) -> bool:
         return (ctx.table_uid, ctx.links["drawer_link"]) in ctx.block_contacts(block)
 
-    def drawer_drop_point(self, ctx: SkillContext) -> tuple[float, float, float]:
+    def drawer_drop_point(self, ctx: SkillContext, edge_margin: float = 0.06) -> tuple[float, float, float]:
         """A point (x, y, floor z) of the open drawer in front of the desk edge (reachable from above).
 
-        Found by downward rays started just under the desk top, below the robot and the block it holds.
+        Found by downward rays started just under the desk top, below the robot and the block it holds;
+        ``edge_margin`` keeps the point that far in front of the desk edge (room for the hand).
         """
         lo, hi = ctx.link_aabb("drawer_link")
         x = float(ctx.rng.uniform(lo[0] + 0.1, hi[0] - 0.1))
-        ys = np.arange(lo[1], self.desk_front_y - 0.05, 0.005)
+        ys = np.arange(lo[1], self.desk_front_y - edge_margin + 0.035, 0.005)
         start_z = np.full_like(ys, self.desk_top_z - 0.005)
         tops = ray_hits(ctx, np.stack([np.full_like(ys, x), ys, start_z], axis=1),
                         np.stack([np.full_like(ys, x), ys, np.zeros_like(ys)], axis=1), "drawer_link")[:, 2]  # fmt: skip

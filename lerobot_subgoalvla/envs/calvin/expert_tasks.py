@@ -200,31 +200,35 @@ def push_into_drawer(ctx: SkillContext, block: str) -> Skill:
 
 
 def place_on(
-    ctx: SkillContext, block: str, target_xy: np.ndarray, surface_z: float, via_y: float | None
+    ctx: SkillContext, block: str, target_xy: np.ndarray, surface_z: float, tilt: float = 0.0
 ) -> Skill:
-    """Carry the held block to ``target_xy``, lower it onto ``surface_z`` (its bottom), release, retreat.
+    """Carry the held block over ``target_xy``, lower it onto ``surface_z`` (its bottom), release, retreat.
 
-    ``via_y`` inserts a waypoint at the target height in front of an opening (cabinet / drawer) first.
+    ``tilt`` > 0 leans the fingers toward +y and approaches along them (from the front and above), which is how
+    the hand reaches into the cabinet's slanted opening (place_in_slider); the block turns with the fingers.
     """
     tcp, euler = ctx.tcp()
     block_pos, _ = ctx.block_pose(block)
-    offset = tcp[2] - block_pos[2]  # TCP height above the block centre while held
-    drop_tcp_z = surface_z + BLOCK_HALF + offset + ctx.rng.uniform(0.008, 0.015)
-    carry_z = max(tcp[2], drop_tcp_z + 0.04)
-    if via_y is not None:
-        yield from ctx.servo(np.array([target_xy[0], via_y, drop_tcp_z + 0.02]), euler, tol=0.015,
-                             what="opening")  # fmt: skip
+    approach = np.array([0.0, np.sin(tilt), -np.cos(tilt)])  # hand -> fingertips
+    # Lowest point of the held block below its centre once turned by ``tilt`` about the closing axis.
+    half_height = BLOCK_HALF * (abs(np.cos(tilt)) + abs(np.sin(tilt)))
+    offset = (tcp[2] - block_pos[2]) * np.cos(tilt)  # TCP height above the block centre
+    drop = np.array([*target_xy, surface_z + half_height + offset + ctx.rng.uniform(0.008, 0.015)])
+    if tilt:
+        euler = tilted_euler(euler[2], tilt)
+        yield from ctx.servo(
+            drop - 0.1 * approach, euler, tol=0.015, rot_tol=0.08, max_steps=100, what="front"
+        )
     else:
-        yield from ctx.servo(np.array([target_xy[0], target_xy[1], carry_z]), euler, tol=0.015, what="above")
-    yield from ctx.servo(np.array([target_xy[0], target_xy[1], drop_tcp_z]), euler, speed=ctx.motion.slow_speed,
-                         tol=0.008, what="place")  # fmt: skip
+        carry_z = max(tcp[2], drop[2] + 0.05)
+        yield from ctx.servo(np.array([*target_xy, carry_z]), euler, tol=0.015, what="above")
+    yield from ctx.servo(drop, euler, speed=ctx.motion.slow_speed, tol=0.008, what="place")
     if not ctx.robot_holds(block):
         raise ExpertFailureError(f"{block} slipped while carrying")
     yield from ctx.set_gripper(GRIPPER_OPEN)
     tcp, euler = ctx.tcp()
-    if via_y is not None:
-        yield from ctx.servo(np.array([tcp[0], via_y, tcp[2] + 0.01]), euler, tol=0.015, what="back out")
-    yield from ctx.servo(ctx.tcp()[0] + [0, 0, 0.06], euler, tol=0.015, what="retreat")
+    retreat = tcp - 0.08 * approach if tilt else tcp + [0, 0, 0.06]
+    yield from ctx.servo(retreat, euler, tol=0.015, what="retreat")
 
 
 def _block_length(ctx: SkillContext, block: str) -> float:

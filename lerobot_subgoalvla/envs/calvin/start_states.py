@@ -19,7 +19,7 @@ import numpy as np
 from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS, check_task_name
 from lerobot_subgoalvla.envs.calvin.expert import ScriptedExpert, is_feasible
 from lerobot_subgoalvla.envs.calvin.expert_layout import SceneLayout
-from lerobot_subgoalvla.envs.calvin.expert_skills import Motion, SkillContext
+from lerobot_subgoalvla.envs.calvin.expert_skills import ExpertFailureError, Motion, SkillContext
 
 if TYPE_CHECKING:
     from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
@@ -31,7 +31,7 @@ EVAL_ROBOT_OBS = np.array([
     0.02586889, -0.2313129, 0.5712808, 3.09045411, -0.02908596, 1.50013585, 0.07999963,
     -1.21779124, 1.03987629, 2.11978254, -2.34205014, -0.87015899, 1.64119093, 0.55344928, 1.0,
 ])  # fmt: skip
-#: Yaw band of blocks that the expert takes out of the cabinet (CALVIN's chains use pi/2 +- pi/8, spec 4.2).
+#: Yaw band of blocks that the expert takes out of the cabinet or drawer (CALVIN's chains: pi/2 +- pi/8, spec 4.2).
 CABINET_YAW = (np.pi / 2 - np.pi / 8, np.pi / 2 + np.pi / 8)
 SETTLE_STEPS = 4
 
@@ -51,6 +51,12 @@ def sample_start_state(
         except _PlacementError:
             continue
         sim.reset(robot_obs=EVAL_ROBOT_OBS, scene_obs=scene_obs)
+        block = _task_block(task)
+        if task.endswith("_drawer") and block is not None:
+            try:
+                _put_in_drawer(sim, block, np_random)
+            except ExpertFailureError:
+                continue
         _settle(sim, np_random)
         if _prefix(task, sim, np_random) and is_feasible(task, sim):
             return sim.robot_obs(), sim.scene_obs()
@@ -130,13 +136,10 @@ def _place(
     """A pose (6,) on ``surface`` at least 9 cm (centre to centre) from the blocks placed before."""
     placed = [obs[6 + 6 * s : 9 + 6 * s] for s in range(slot)]
     for _ in range(200):
-        if surface == "drawer":
-            pos = np.array([
-                rng.uniform(layout.drawer_x[0] + 0.1, layout.drawer_x[1] - 0.1),
-                layout.desk_front_y - obs[1] + rng.uniform(0.0, 0.08) - 0.02,
-                0.375,
-            ])  # fmt: skip
-            yaw = rng.uniform(-np.pi, np.pi)
+        if surface == "drawer":  # parked under the desk; moved into the opened drawer after the reset
+            return np.array(
+                [layout.drawer_x[0] + 0.1 + 0.1 * slot, -0.05, layout.desk_top_z - 0.3, 0.0, 0.0, 0.0]
+            )
         else:
             low, high = sim.scene.surfaces[surface]
             pos = rng.uniform(low, high)
@@ -144,6 +147,15 @@ def _place(
         if all(np.linalg.norm(pos[:2] - other[:2]) > 0.09 for other in placed):
             return np.array([*pos, 0.0, 0.0, yaw])
     raise _PlacementError(f"could not place block slot {slot} on {surface}")
+
+
+def _put_in_drawer(sim: CalvinSimulation, block: str, rng: np.random.Generator) -> None:
+    """Drop ``block`` (random yaw) onto the open drawer's floor, at a point found by rays (lift_*_drawer)."""
+    ctx = SkillContext(sim, rng, Motion(0.01, 0.005))
+    x, y, floor_z = SceneLayout.from_context(ctx).drawer_drop_point(ctx, edge_margin=0.07)
+    # Long side along y: the fingers then close along x and the hand stays clear of the desk edge.
+    quat = sim.client.getQuaternionFromEuler([0.0, 0.0, float(rng.uniform(*CABINET_YAW))])
+    sim.client.resetBasePositionAndOrientation(ctx.block_uids[block], [x, y, floor_z + 0.021], quat)
 
 
 def _settle(sim: CalvinSimulation, rng: np.random.Generator) -> None:
