@@ -180,7 +180,7 @@ class DiT(nn.Module):
 
     def embed_condition(
         self, cond: Tensor, cond_mask: Tensor | None, drop_cond: Tensor | None
-    ) -> tuple[Tensor, Tensor, Tensor]:
+    ) -> tuple[Tensor, Tensor, Tensor | None]:
         """Project the conditioning features to z tokens, apply label dropout, pool them.
 
         Args:
@@ -190,13 +190,14 @@ class DiT(nn.Module):
 
         Returns:
             z: (B, Tc, D) tokens placed before the input tokens; pooled: (B, D) masked mean of z;
-            valid: (B, Tc) bool, which z tokens self-attention may read.
+            valid: (B, Tc) bool, which z tokens self-attention may read (None = all).
         """
         z = self.z_embedder(cond)  # (B, Tc, D)
-        valid = torch.ones(z.shape[:2], dtype=torch.bool, device=z.device) if cond_mask is None else cond_mask
         if drop_cond is not None:
             z = torch.where(drop_cond[:, None, None], self.null_z.to(z.dtype).expand_as(z), z)
-            valid = valid | drop_cond[:, None]  # the null condition is fully visible
+        if cond_mask is None:  # no mask: plain mean, and attention keeps its fast path
+            return z, z.mean(dim=1), None
+        valid = cond_mask if drop_cond is None else cond_mask | drop_cond[:, None]  # null token fully visible
         weights = valid.to(z.dtype).unsqueeze(-1)  # (B, Tc, 1)
         pooled = (z * weights).sum(dim=1) / weights.sum(dim=1).clamp_min(1.0)  # (B, D)
         return z, pooled, valid
@@ -228,8 +229,10 @@ class DiT(nn.Module):
         positions = torch.arange(num_x, device=x.device)
         x = x + self.pos_scale * sinusoidal_embedding(positions, self.hidden_dim).to(x.dtype)
         tokens = torch.cat([z, x], dim=1)  # (B, Tc+T, D): z before the input tokens
-        x_valid = torch.ones(x.shape[:2], dtype=torch.bool, device=x.device)
-        key_padding_mask = ~torch.cat([z_valid, x_valid], dim=1)  # (B, Tc+T) True = ignore
+        key_padding_mask = None  # (B, Tc+T) True = ignore; input tokens are always visible
+        if z_valid is not None:
+            x_valid = torch.ones(x.shape[:2], dtype=torch.bool, device=x.device)
+            key_padding_mask = ~torch.cat([z_valid, x_valid], dim=1)
         for block in self.blocks:
             tokens = block(tokens, c, key_padding_mask)
         return self.final_layer(tokens[:, -num_x:], c)  # (B, T, X)

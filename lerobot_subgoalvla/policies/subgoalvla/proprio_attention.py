@@ -13,7 +13,7 @@ tokens and ``encoder_attention_mask`` their padding mask (True = valid), which r
 is cross-attention then MLP (the paper's figure 4 shows only cross-attention).
 
 Ablations (paper table 4, appendix D.1) share one interface, ``aggregator(proprio, H, mask) -> (features,
-features_mask)``, so the model swaps them by name (``feature_aggregation``):
+features_mask | None)`` (None = all features valid), so the model swaps them by name (``feature_aggregation``):
 
 - ``mean``: the k tokens most similar (dot product) to the masked mean token;
 - ``max``: the k tokens with the largest L2 norm;
@@ -139,17 +139,16 @@ class ProprioCrossAttention(nn.Module):
 
     def forward(
         self, proprio: Tensor, encoder_hidden_states: Tensor, encoder_attention_mask: Tensor | None
-    ) -> tuple[Tensor, Tensor]:
+    ) -> tuple[Tensor, None]:
         """Args: proprio (B, Q, P); encoder_hidden_states (B, S, E); encoder_attention_mask (B, S) True=valid.
 
         Returns:
-            features (B, Q, D) and their mask (B, Q), all True.
+            features (B, Q, D) and their mask: None, every query token is a valid feature.
         """
         hidden_states = self.queries(proprio)  # (B, Q, D)
         for block in self.blocks:
             hidden_states = block(hidden_states, encoder_hidden_states, encoder_attention_mask)
-        features = self.norm_out(hidden_states)
-        return features, torch.ones(features.shape[:2], dtype=torch.bool, device=features.device)
+        return self.norm_out(hidden_states), None
 
 
 class TopKTokenPooling(nn.Module):
