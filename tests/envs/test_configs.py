@@ -11,7 +11,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.envs.utils import FreezeAfterEpisodeEnd, env_to_policy_features
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
-from lerobot_subgoalvla.envs.calvin.configs import CalvinEnvConfig
+from lerobot_subgoalvla.envs.calvin.configs import GYM_ID, CalvinEnvConfig
 
 
 def test_registered_as_calvin() -> None:
@@ -102,3 +102,11 @@ def test_live_pool_keeps_at_most_max_parallel_tasks_alive() -> None:
     for vec in envs.values():
         vec.close()
     assert isinstance(envs[0].single_action_space, gym.spaces.Box)
+
+
+def test_gymnasium_make_builds_a_calvin_env() -> None:
+    env = gym.make(GYM_ID, task="open_drawer", static_size=16, gripper_size=16, episode_length=5)
+    assert type(env.unwrapped).__name__ == "CalvinEnv"
+    assert env.unwrapped.task_description == "pull the handle to open the drawer"
+    assert env.get_wrapper_attr("_max_episode_steps") == 5
+    env.close()

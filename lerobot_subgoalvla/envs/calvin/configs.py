@@ -38,6 +38,11 @@ SCENES: tuple[str, ...] = ("procedural", "calvin_A", "calvin_B", "calvin_C", "ca
 ACTION_MODES: tuple[str, ...] = ("relative", "absolute")
 #: CALVIN's per-subtask step budget EP_LEN (calvin-spec 4.3).
 CALVIN_EP_LEN = 360
+#: ``gymnasium.make(GYM_ID, task=..., ...)`` builds a ``CalvinEnv``; no TimeLimit wrapper, the env ends its own
+#: episodes (per-subtask budgets), and ``_max_episode_steps`` is set on the env itself.
+GYM_ID = "lerobot_subgoalvla/Calvin-v0"
+if GYM_ID not in gym.registry:
+    gym.register(GYM_ID, entry_point="lerobot_subgoalvla.envs.calvin.env:CalvinEnv")
 
 
 def _default_features() -> dict[str, PolicyFeature]:

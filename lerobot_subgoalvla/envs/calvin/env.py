@@ -57,8 +57,6 @@ CHAIN_LENGTH = 5
 ROBOT_OBS_DIM = 15
 SCENE_OBS_DIM = 24
 ACTION_DIM = 7
-#: ``reset`` option keys (LeRobot's rollout also passes ``lerobot_new_rollout``, which is ignored).
-RESET_OPTIONS: tuple[str, ...] = ("robot_obs", "scene_obs", "chain_id")
 
 
 class CalvinEnv(gym.Env):
@@ -230,6 +228,7 @@ class CalvinEnv(gym.Env):
             self._subtasks = tuple(chain.tasks)
             robot_obs = calvin_chains.EVAL_ROBOT_OBS if robot_obs is None else robot_obs
             scene_obs = chain.scene_obs if scene_obs is None else scene_obs
+            logger.debug("chain %d: %s", self._chain_id, ", ".join(chain.tasks))
             self._sim.reset(robot_obs=robot_obs, scene_obs=scene_obs, np_random=self.np_random)
         elif robot_obs is None and scene_obs is None:
             sample_start_state(self.task, self._sim, self.np_random)
@@ -308,12 +307,11 @@ class CalvinEnv(gym.Env):
         }
 
     def _info(self, success: bool) -> dict[str, Any]:
-        return {
-            "is_success": bool(success),
-            "num_completed": self._subtask_index,
-            "subtask_index": min(self._subtask_index, len(self._subtasks) - 1),
-            "chain_id": -1 if self._chain_id is None else self._chain_id,
-        }
+        info = {"is_success": bool(success), "num_completed": self._subtask_index}
+        if self.is_chain_mode:
+            info["subtask_index"] = min(self._subtask_index, CHAIN_LENGTH - 1)
+            info["chain_id"] = self._chain_id
+        return info
 
     def _write_result(self) -> None:
         if self.results_path is None or not self.is_chain_mode:
