@@ -121,3 +121,13 @@ def test_cli_bad_input(tmp_path: Path, caplog: pytest.LogCaptureFixture, case: s
     errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
     assert len(errors) == 1 and "\n" not in errors[0]
     assert not (tmp_path / "out" / "results.json").exists()
+
+
+def test_console_scripts_resolve() -> None:
+    from importlib.metadata import entry_points
+
+    from lerobot_subgoalvla.envs.calvin.chains import main as chains_main
+
+    scripts = {ep.name: ep for ep in entry_points(group="console_scripts")}
+    assert scripts["subgoalvla-calvin-report"].load() is main
+    assert scripts["subgoalvla-calvin-chains"].load() is chains_main
