@@ -259,6 +259,7 @@ def options_from_args(args: argparse.Namespace) -> dict:
 def main(argv: Sequence[str] | None = None) -> None:
     """Entry point of ``subgoalvla-convert-calvin``: one log line per error, non-zero exit."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger().setLevel(logging.INFO)  # LeRobot may have installed the root handler already
     args = parse_args(argv)
     try:
         datasets = convert(

@@ -1,0 +1,256 @@
+"""Generate a CALVIN-format play dataset in our simulation with the scripted expert (calvin-spec.md 1).
+
+Examples::
+
+    # 1000 tasks on the procedural desk, 2 worker processes, 10 % validation segments
+    subgoalvla-generate-calvin --output /data/calvin_gen --num-tasks 1000 --seed 0 --workers 2
+
+    # CALVIN's scene D from a calvin_env clone, then convert it like a CALVIN release
+    subgoalvla-generate-calvin --output /data/calvin_gen_D --num-tasks 200 --seed 1 --scene calvin_D \\
+        --assets-dir /path/to/calvin_env
+    subgoalvla-convert-calvin /data/calvin_gen_D --repo-id me/calvin_gen_D --split both
+
+The tasks are played in *segments* of ``--tasks-per-segment`` chained tasks (``calvin_play.record_segment``);
+each segment is one row of ``ep_start_end_ids.npy``. Segments are generated independently (segment ``i``
+seeded with ``SeedSequence([seed, i])`` and a fresh simulation), so the output depends on ``--seed`` only,
+not on ``--workers``. Each finished segment is written atomically to ``OUTPUT/.segments/segment-XXXXXX``; a
+rerun with the same options skips finished segments. When all exist, each split is assembled into
+``OUTPUT/<split>.tmp`` (frame files hard-linked, consecutive 7-digit ids, segment table, scene_info.npy,
+lang_annotations/auto_lang_ann.npy, statistics.yaml) and renamed to ``OUTPUT/<split>``.
+
+Differences from CALVIN's releases (also in docs/data.md): no depth/tactile keys, no sentence embeddings
+(``language.emb`` absent), language windows span the whole expert execution of a confirmed task (not
+CALVIN's 64-frame windows), ``scene_info.npy`` is written for both splits, and the validation split is
+drawn from the same scene as training.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import shutil
+import sys
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from lerobot_subgoalvla.datasets_conversion.calvin_format import (
+    SPLITS,
+    LanguageAnnotations,
+    compute_statistics,
+    frame_filename,
+    write_frame,
+    write_language,
+    write_scene_info,
+    write_segments,
+    write_statistics,
+)
+from lerobot_subgoalvla.datasets_conversion.calvin_quirks import block_order_of
+
+logger = logging.getLogger(__name__)
+
+SEGMENTS_DIR = ".segments"
+
+
+@dataclass(frozen=True)
+class GeneratorOptions:
+    """Everything that determines the generated data (recorded in ``OUTPUT/.segments/options.json``)."""
+
+    num_tasks: int
+    seed: int
+    scene: str = "procedural"
+    assets_dir: str | None = None
+    val_fraction: float = 0.1
+    tasks_per_segment: int = 8
+    max_steps_per_task: int = 360
+    static_size: int = 200
+    gripper_size: int = 84
+
+    def __post_init__(self) -> None:
+        if self.num_tasks < 1 or self.tasks_per_segment < 1:
+            raise ValueError("--num-tasks and --tasks-per-segment must be >= 1")
+        if not 0.0 <= self.val_fraction < 1.0:
+            raise ValueError(f"--val-fraction must be in [0, 1), got {self.val_fraction}")
+        if self.val_fraction > 0 and len(self.segment_tasks()) < 2:
+            raise ValueError(
+                "--val-fraction > 0 needs at least 2 segments for two splits; raise --num-tasks or lower "
+                "--tasks-per-segment"
+            )
+
+    @property
+    def scene_name(self) -> str:
+        """scene_info.npy name: ``calvin_A`` -> ``calvin_scene_A``; ``procedural`` stays."""
+        return (
+            self.scene.replace("calvin_", "calvin_scene_") if self.scene.startswith("calvin_") else self.scene
+        )
+
+    def segment_tasks(self) -> list[int]:
+        """Task count of each segment (the last one takes the remainder)."""
+        full, rest = divmod(self.num_tasks, self.tasks_per_segment)
+        return [self.tasks_per_segment] * full + ([rest] if rest else [])
+
+    def validation_segments(self) -> set[int]:
+        """Segments of the validation split: a seeded random ``val_fraction`` of them (>= 1 if fraction > 0)."""
+        count = len(self.segment_tasks())
+        num_val = min(count - 1, max(1, round(self.val_fraction * count))) if self.val_fraction > 0 else 0
+        order = np.random.default_rng(np.random.SeedSequence([self.seed, 2**31 - 1])).permutation(count)
+        return {int(i) for i in order[:num_val]}
+
+
+@dataclass(frozen=True)
+class SegmentJob:
+    """One segment to generate (picklable for worker processes)."""
+
+    index: int
+    num_tasks: int
+    options: GeneratorOptions
+    directory: Path
+
+
+def generate_segment(job: SegmentJob) -> int:
+    """Simulate and write one segment (frames 0..F-1 + ``segment.json``) atomically; returns F."""
+    from lerobot_subgoalvla.datasets_conversion.calvin_play import record_segment
+    from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+
+    opts = job.options
+    tmp = job.directory.with_suffix(".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    rng = np.random.default_rng(np.random.SeedSequence([opts.seed, job.index]))
+    sim = CalvinSimulation(opts.scene, opts.assets_dir, opts.static_size, opts.gripper_size)
+    try:
+        slot_order = tuple(name.removeprefix("block_") for name in sim.block_names)
+        if slot_order != block_order_of(opts.scene_name):
+            raise ValueError(
+                f"scene {opts.scene}: simulation slot order {slot_order} differs from calvin_quirks"
+            )
+        segment = record_segment(sim, job.num_tasks, rng, opts.max_steps_per_task)
+    finally:
+        sim.close()
+    for t in range(segment.num_frames):
+        write_frame(tmp, t, {key: value[t] for key, value in segment.frames.items()})
+    tmp.mkdir(parents=True, exist_ok=True)
+    summary = {"num_frames": segment.num_frames, "windows": segment.windows,
+               "attempted": segment.attempted, "completed": segment.completed}  # fmt: skip
+    (tmp / "segment.json").write_text(json.dumps(summary))
+    tmp.rename(job.directory)
+    return segment.num_frames
+
+
+def _assemble_split(output: Path, name: str, jobs: list[SegmentJob], opts: GeneratorOptions) -> None:
+    """Hard-link the segments' frames into ``OUTPUT/<name>`` with consecutive ids and write the index files."""
+    tmp = output / f"{name}.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    rows, indx, anns, tasks, lowdim = [], [], [], [], {"robot_obs": [], "scene_obs": [], "actions": []}
+    next_id = 0
+    for job in jobs:
+        summary = json.loads((job.directory / "segment.json").read_text())
+        num = summary["num_frames"]
+        if num == 0:
+            continue
+        for t in range(num):
+            os.link(job.directory / frame_filename(t), tmp / frame_filename(next_id + t))
+            with np.load(job.directory / frame_filename(t)) as npz:
+                for key, values in lowdim.items():
+                    values.append(npz[key])
+        for start, end, annotation, task in summary["windows"]:
+            indx.append((next_id + start, next_id + end))
+            anns.append(annotation)
+            tasks.append(task)
+        rows.append((next_id, next_id + num - 1))
+        next_id += num
+    if not rows:
+        raise RuntimeError(f"{name}: the expert recorded no frames; check the scene/assets and the expert")
+    write_segments(tmp, np.array(rows))
+    write_scene_info(tmp, {opts.scene_name: (0, next_id - 1)})
+    write_language(tmp, LanguageAnnotations(np.array(indx).reshape(-1, 2), anns, tasks))
+    stacked = {key: np.stack(values) for key, values in lowdim.items()}
+    write_statistics(tmp, compute_statistics(stacked["robot_obs"], stacked["scene_obs"], stacked["actions"]))
+    tmp.rename(output / name)
+    logger.info("%s: %d segments, %d frames, %d language windows", name, len(rows), next_id, len(indx))
+
+
+def _check_options(segments_dir: Path, opts: GeneratorOptions) -> None:
+    path = segments_dir / "options.json"
+    record = asdict(opts)
+    if path.is_file() and json.loads(path.read_text()) != record:
+        raise ValueError(
+            f"{path}: OUTPUT holds a generation with other options; rerun with them or use a new --output"
+        )
+    segments_dir.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(record, indent=2))
+
+
+def generate(output: Path, opts: GeneratorOptions, workers: int = 1) -> dict[str, Path]:
+    """Generate (or finish generating) ``OUTPUT/training`` and ``OUTPUT/validation``; returns their paths."""
+    output = Path(output)
+    if all((output / name).is_dir() for name in SPLITS):
+        raise FileExistsError(f"{output}: already holds a generated dataset; choose another --output")
+    segments_dir = output / SEGMENTS_DIR
+    _check_options(segments_dir, opts)
+    jobs = [
+        SegmentJob(i, n, opts, segments_dir / f"segment-{i:06d}") for i, n in enumerate(opts.segment_tasks())
+    ]
+    todo = [job for job in jobs if not job.directory.is_dir()]
+    with tqdm(
+        total=opts.num_tasks, initial=opts.num_tasks - sum(j.num_tasks for j in todo), unit="task"
+    ) as bar:
+        if workers <= 1:
+            for job in todo:
+                generate_segment(job)
+                bar.update(job.num_tasks)
+        else:
+            with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+                for job, _ in zip(todo, pool.map(generate_segment, todo), strict=True):
+                    bar.update(job.num_tasks)
+    validation = opts.validation_segments()
+    for name in SPLITS:
+        selected = [job for job in jobs if (job.index in validation) == (name == "validation")]
+        if not (output / name).is_dir():
+            _assemble_split(output, name, selected, opts)
+    shutil.rmtree(segments_dir)
+    return {name: output / name for name in SPLITS}
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """The CLI flags (module docstring)."""
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--output", type=Path, required=True, help="dataset folder to create")
+    parser.add_argument("--num-tasks", type=int, required=True, help="task attempts in total")
+    parser.add_argument("--seed", type=int, required=True)
+    parser.add_argument("--scene", default="procedural", help="procedural or calvin_A .. calvin_D")
+    parser.add_argument("--assets-dir", default=None, help="calvin_env clone (needed for calvin_* scenes)")
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--val-fraction", type=float, default=0.1)
+    parser.add_argument("--tasks-per-segment", type=int, default=8)
+    parser.add_argument("--max-steps-per-task", type=int, default=360)
+    parser.add_argument("--static-size", type=int, default=200)
+    parser.add_argument("--gripper-size", type=int, default=84)
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """Entry point of ``subgoalvla-generate-calvin``: one log line per error, non-zero exit."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger().setLevel(logging.INFO)  # LeRobot may have installed the root handler already
+    args = vars(parse_args(argv))
+    output, workers = args.pop("output"), args.pop("workers")
+    try:
+        paths = generate(output, GeneratorOptions(**args), workers)
+    except (FileNotFoundError, FileExistsError, ValueError, RuntimeError) as error:
+        logger.error("%s", error)
+        sys.exit(1)
+    logger.info("generated %s", ", ".join(str(p) for p in paths.values()))
+
+
+if __name__ == "__main__":
+    main()

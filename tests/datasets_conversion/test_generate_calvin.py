@@ -1,0 +1,108 @@
+"""Generator: determinism for a seed, resume after an interruption, native validity, conversion."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lerobot_subgoalvla.datasets_conversion import generate_calvin
+from lerobot_subgoalvla.datasets_conversion.calvin_format import CalvinSplit
+from lerobot_subgoalvla.datasets_conversion.calvin_play import relative_actions
+from lerobot_subgoalvla.datasets_conversion.calvin_validate import validate_split
+from lerobot_subgoalvla.datasets_conversion.convert_calvin import convert
+from lerobot_subgoalvla.datasets_conversion.generate_calvin import GeneratorOptions, generate
+from lerobot_subgoalvla.datasets_conversion.lerobot_parts import ConversionOptions
+
+pytest.importorskip("pybullet")
+
+OPTIONS = GeneratorOptions(
+    num_tasks=2, seed=3, val_fraction=0.5, tasks_per_segment=1, static_size=64, gripper_size=64
+)
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    output = tmp_path_factory.mktemp("gen") / "reference"
+    generate(output, OPTIONS)
+    return output
+
+
+def _split_contents(split_dir: Path) -> dict:
+    split = CalvinSplit(split_dir)
+    ids = [i for start, end in split.segments.tolist() for i in range(start, end + 1)]
+    lang = split.language()
+    return {"segments": split.segments, "frames": split.load_frames(ids), "indx": lang.indx,
+            "ann": lang.ann, "task": lang.task, "scene": split.scene_info}  # fmt: skip
+
+
+def _assert_same(a: dict, b: dict) -> None:
+    np.testing.assert_array_equal(a["segments"], b["segments"])
+    np.testing.assert_array_equal(a["indx"], b["indx"])
+    assert (a["ann"], a["task"], a["scene"]) == (b["ann"], b["task"], b["scene"])
+    for key, value in a["frames"].items():
+        np.testing.assert_array_equal(value, b["frames"][key], err_msg=key)
+
+
+def test_generated_data_is_valid_native_calvin(generated: Path) -> None:
+    for name in ("training", "validation"):
+        split = validate_split(generated / name, require_language=False)
+        assert split.scene_info == {"procedural": (0, split.num_frames - 1)}
+        frames = split.load_frames(range(split.num_frames))
+        assert frames["rgb_static"].shape[1:] == (64, 64, 3) and frames["rgb_gripper"].dtype == np.uint8
+        # spec 1.6: actions[t][:6] is the next frame's TCP pose; rel_actions derived from it
+        np.testing.assert_allclose(frames["actions"][:-1, :6], frames["robot_obs"][1:, :6])
+        np.testing.assert_allclose(
+            frames["rel_actions"], relative_actions(frames["actions"], frames["robot_obs"])
+        )
+        assert set(np.unique(frames["actions"][:, 6])) <= {-1.0, 1.0}
+        assert np.abs(frames["rel_actions"]).max() <= 1.0
+        lang = split.language()
+        assert all(0 <= s <= e < split.num_frames for s, e in lang.indx.tolist())
+    assert not (generated / ".segments").exists()
+
+
+def test_interrupted_generation_resumes_to_identical_data(
+    generated: Path, tmp_path: Path, monkeypatch
+) -> None:
+    output = tmp_path / "resumed"
+    real = generate_calvin.generate_segment
+    calls: list[int] = []
+
+    def crash_on_second(job):
+        calls.append(job.index)
+        if job.index == 1:
+            raise RuntimeError("simulated crash")
+        return real(job)
+
+    monkeypatch.setattr(generate_calvin, "generate_segment", crash_on_second)
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        generate(output, OPTIONS)
+    assert (output / ".segments" / "segment-000000").is_dir() and not (output / "training").exists()
+    calls.clear()
+    monkeypatch.setattr(generate_calvin, "generate_segment", lambda job: calls.append(job.index) or real(job))
+    generate(output, OPTIONS)
+    assert calls == [1]  # the finished segment was skipped
+    for name in ("training", "validation"):
+        _assert_same(_split_contents(output / name), _split_contents(generated / name))
+    with pytest.raises(FileExistsError, match="already holds a generated dataset"):
+        generate(output, OPTIONS)
+
+
+def test_generated_data_converts(generated: Path, tmp_path: Path) -> None:
+    options = ConversionOptions(image_format="image", mode="all")
+    out = convert(generated, "local/gen", tmp_path / "converted", split="both", options=options, verify=True)
+    total = sum(CalvinSplit(generated / n).num_frames for n in ("training", "validation"))
+    assert out["training"].num_frames + out["validation"].num_frames == total
+
+
+def test_option_errors(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="at least 2 segments"):
+        GeneratorOptions(num_tasks=1, seed=0, val_fraction=0.1)
+    with pytest.raises(ValueError, match="val-fraction"):
+        GeneratorOptions(num_tasks=4, seed=0, val_fraction=1.5)
+    (tmp_path / "out" / ".segments").mkdir(parents=True)
+    (tmp_path / "out" / ".segments" / "options.json").write_text("{}")
+    with pytest.raises(ValueError, match="other options"):
+        generate(tmp_path / "out", OPTIONS)
