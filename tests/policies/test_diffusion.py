@@ -111,11 +111,15 @@ def test_ddim_steps_are_capped_at_training_timesteps() -> None:
     denoiser = ConstantDenoiser(0.0)
     objective.sample(denoiser, (1, 4, 7), torch.zeros(1, 1, 16))
     assert [int(t[0]) for t in denoiser.timesteps] == [7, 6, 5, 4, 3, 2, 1, 0]
+    denoiser.timesteps.clear()
+    objective.sample(denoiser, (1, 4, 7), torch.zeros(1, 1, 16), num_inference_steps=4)
+    assert [int(t[0]) for t in denoiser.timesteps] == [7, 5, 3, 1]  # trailing: start from the noisiest step
 
 
-def test_ddim_recovers_data_from_an_oracle_denoiser() -> None:
+@pytest.mark.parametrize("steps", [8, 4])
+def test_ddim_recovers_data_from_an_oracle_denoiser(steps: int) -> None:
     """A denoiser that knows x0 yields x0 exactly: the sampler implements the DDIM update correctly."""
-    objective = DiffusionObjective(num_train_timesteps=8, num_inference_steps=8)
+    objective = DiffusionObjective(num_train_timesteps=8, num_inference_steps=steps)
     target = torch.randn(1, 4, 7)
     abar = objective.noise_scheduler.alphas_cumprod
 

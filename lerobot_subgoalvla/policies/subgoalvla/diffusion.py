@@ -81,7 +81,11 @@ class DiffusionObjective:
             clip_sample=False,
             prediction_type="epsilon",
         )
-        self.sampler = DDIMScheduler.from_config(self.noise_scheduler.config, set_alpha_to_one=True)
+        # "trailing" spacing starts every DDIM walk at the noisiest timestep T-1 (pure noise is where sampling
+        # starts), also when fewer steps than timesteps are taken.
+        self.sampler = DDIMScheduler.from_config(
+            self.noise_scheduler.config, set_alpha_to_one=True, timestep_spacing="trailing"
+        )
         self.num_train_timesteps = num_train_timesteps
         self.num_inference_steps = self.effective_inference_steps(num_inference_steps)
         self.guidance_scale = guidance_scale

@@ -165,36 +165,51 @@ class SubgoalVLAModel(nn.Module):
         with torch.set_grad_enabled(torch.is_grad_enabled() and stage == "stage1"):
             hidden, mask = self.encode(batch)  # stage II: backbone frozen, no graph through it
         history = batch[STATE_HISTORY_KEY]
-        trace = batch[SUBGOAL_TRACE_KEY][:, : self.config.subgoal_trace_len]  # (B, M, p)
-        planner_loss = hidden.new_zeros(())
-        condition_trace = None
+        planner_loss, condition_trace = hidden.new_zeros(()), None
         if self.planner is not None:
-            features, features_mask = self.planner_aggregator(history, hidden, mask)  # (B, h, E)
-            planner_loss = self.planner_objective.compute_loss(
-                self.planner, trace, features, features_mask, generator=generator
+            trace = batch[SUBGOAL_TRACE_KEY][:, : self.config.subgoal_trace_len]  # (B, M, p)
+            planner_loss, sampled = self._planner_loss(
+                hidden, mask, history, trace, stage == "stage2", generator
             )
-            condition_trace = trace
-            if stage == "stage2":
-                condition_trace = self.planner_objective.sample(
-                    self.planner, tuple(trace.shape), features.detach(), features_mask, generator=generator
-                )
+            condition_trace = trace if sampled is None else sampled
         features, features_mask = self.generator_aggregator(
             self._generator_queries(history, condition_trace), hidden, mask
         )  # (B, h[+M], E)
         is_pad = batch.get(ACTION_IS_PAD_KEY)
+        valid = None if is_pad is None else ~is_pad.bool()  # padded actions leave the loss
         generator_loss = self.generator_objective.compute_loss(
-            self.generator,
-            batch[ACTION_KEY],
-            features,
-            features_mask,
-            valid_mask=None if is_pad is None else ~is_pad.bool(),
-            generator=generator,
+            self.generator, batch[ACTION_KEY], features, features_mask, valid, generator
         )
         return {
             "planner_loss": planner_loss,
             "generator_loss": generator_loss,
             "loss": planner_loss + generator_loss,
         }
+
+    def _planner_loss(
+        self,
+        hidden: Tensor,
+        mask: Tensor,
+        history: Tensor,
+        trace: Tensor,
+        sample_trace: bool,
+        generator: torch.Generator | None,
+    ) -> tuple[Tensor, Tensor | None]:
+        """Planner loss on the ground-truth trace (B, M, p), and in stage II a trace sampled without gradient.
+
+        Returns:
+            the scalar loss and the sampled trace (B, M, p), or None when ``sample_trace`` is False.
+        """
+        features, features_mask = self.planner_aggregator(history, hidden, mask)  # (B, h, E)
+        loss = self.planner_objective.compute_loss(
+            self.planner, trace, features, features_mask, generator=generator
+        )
+        if not sample_trace:
+            return loss, None
+        sampled = self.planner_objective.sample(
+            self.planner, tuple(trace.shape), features.detach(), features_mask, generator=generator
+        )
+        return loss, sampled
 
     @torch.no_grad()
     def plan(
