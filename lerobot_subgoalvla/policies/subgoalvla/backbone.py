@@ -8,10 +8,12 @@ head). The decoder is TRUNCATED to its first k layers and its final norm replace
 layers k+1..m cost neither compute nor memory. The dropped layers are not in the state dict, and a reloaded policy
 truncates the same way, so checkpoints stay consistent.
 
-Any architecture exposing ``vision_tower``, ``multi_modal_projector`` and ``language_model`` (with ``layers`` and
-``norm``) works: LLaVA-1.5 (CLIP + LLaMA, the ``paper`` preset), LLaVA-Interleave (SigLIP + Qwen, the ``small``
-preset), PaliGemma, LLaVA-NeXT... ``name_or_path=None`` builds a randomly initialised tiny LLaVA from a config
-plus an offline word-level tokenizer (``build_tiny_tokenizer``) for tests and CPU runs.
+Supported: checkpoints of the LLaVA architecture (``model_type="llava"``, one square image) with any vision tower
+and LLM transformers provides, e.g. LLaVA-1.5 (CLIP + LLaMA, the ``paper`` preset) and LLaVA-Interleave (SigLIP +
+Qwen, the ``small`` preset). Other VLMs whose base model has ``vision_tower``, ``multi_modal_projector`` and
+``language_model.layers/norm`` load, but their own prompt/pixel conventions (PaliGemma's prefix, LLaVA-NeXT's
+tiling) are not reproduced by the input helpers. ``name_or_path=None`` builds a randomly initialised tiny LLaVA
+from a config plus an offline word-level tokenizer (``build_tiny_tokenizer``) for tests and CPU runs.
 
 Input helpers the processor and model call:
 ``load_tokenizer`` / ``build_tiny_tokenizer`` - the tokenizer; ``VLMInputSpec.load`` - image size, mean/std and
@@ -176,7 +178,9 @@ class VLMInputSpec:
         vision = config.vision_config
         num = (vision.image_size // vision.patch_size) ** 2
         has_cls = vision.model_type == "clip_vision_model"  # CLIP prepends a CLS token, SigLIP does not
-        strategy = getattr(config, "vision_feature_select_strategy", "default")
+        strategy = getattr(
+            config, "vision_feature_select_strategy", "full"
+        )  # no such option: keep all tokens
         num += int(has_cls) - int(strategy == "default")
         return cls(config.image_token_id, num, vision.image_size, tuple(image_mean), tuple(image_std))
 
