@@ -6,7 +6,16 @@ from pathlib import Path
 
 import pytest
 import torch
-from transformers import AutoModel, CLIPImageProcessor, LlavaForConditionalGeneration
+from transformers import (
+    AutoModel,
+    CLIPImageProcessor,
+    CLIPVisionConfig,
+    LlamaConfig,
+    LlavaConfig,
+    LlavaForConditionalGeneration,
+    Qwen2Config,
+    SiglipVisionConfig,
+)
 
 from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS
 from lerobot_subgoalvla.policies.subgoalvla.backbone import (
@@ -148,3 +157,60 @@ def test_from_pretrained_path_loads_offline(tmp_path: Path) -> None:
             input_ids=ids, attention_mask=mask, pixel_values=pixels, output_hidden_states=True
         )
     torch.testing.assert_close(hidden, reference.hidden_states[3])
+
+
+def _interleave_like_config(**dims: int) -> LlavaConfig:
+    """llava-interleave-qwen-0.5b's layout (SigLIP, no CLS, "full" features from the last layer, Qwen2 LLM)."""
+    vision = SiglipVisionConfig(
+        hidden_size=dims.get("vision_hidden", 1152),
+        intermediate_size=dims.get("vision_mlp", 4304),
+        num_hidden_layers=dims.get("vision_layers", 26),
+        num_attention_heads=dims.get("vision_heads", 16),
+        image_size=dims.get("image_size", 384),
+        patch_size=14,
+        vision_use_head=False,
+    )
+    text = Qwen2Config(
+        vocab_size=dims.get("vocab", 152000),
+        hidden_size=dims.get("text_hidden", 1024),
+        intermediate_size=dims.get("text_mlp", 2816),
+        num_hidden_layers=dims.get("text_layers", 24),
+        num_attention_heads=dims.get("text_heads", 16),
+        num_key_value_heads=dims.get("text_heads", 16),
+    )
+    return LlavaConfig(
+        vision_config=vision,
+        text_config=text,
+        image_token_index=dims.get("image_token", 151646),
+        vision_feature_select_strategy="full",
+        vision_feature_layer=-1,
+    )
+
+
+def test_input_spec_counts_image_tokens_of_the_real_presets() -> None:
+    small = VLMInputSpec.from_config(_interleave_like_config(), (0.5,) * 3, (0.5,) * 3)
+    assert (small.num_image_tokens, small.image_size, small.image_token_id) == (729, 384, 151646)  # 27 x 27
+    paper = LlavaConfig(  # llava-1.5: CLIP-L/14-336, CLS dropped by the "default" strategy
+        vision_config=CLIPVisionConfig(image_size=336, patch_size=14),
+        text_config=LlamaConfig(),
+        image_token_index=32000,
+    )
+    assert VLMInputSpec.from_config(paper, (0.5,) * 3, (0.5,) * 3).num_image_tokens == 576
+
+
+def test_siglip_qwen_architecture_runs_at_tiny_dims() -> None:
+    """The small preset's architecture (SigLIP + Qwen2, "full" features), shrunk: H[k] and mask come out right."""
+    config = _interleave_like_config(
+        vision_hidden=32, vision_mlp=64, vision_layers=2, vision_heads=2, image_size=28,
+        vocab=64, text_hidden=32, text_mlp=64, text_layers=4, text_heads=4, image_token=63,
+    )  # fmt: skip
+    backbone = VLMBackbone(None, vlm_config=config).eval()
+    spec = backbone.input_spec
+    assert spec.num_image_tokens == 4 and backbone.layer == 2
+    ids = torch.cat([torch.full((2, 4), 63), torch.randint(0, 60, (2, 6))], dim=1)
+    mask = torch.ones_like(ids)
+    mask[1, -2:] = 0
+    pixels = backbone.prepare_pixel_values(torch.rand(2, 3, 200, 200), torch.rand(2, 3, 84, 84))
+    with torch.no_grad():
+        hidden, valid = backbone(ids, mask, pixels)
+    assert hidden.shape == (2, 10, 32) and valid.sum().item() == 18 and torch.isfinite(hidden).all()
