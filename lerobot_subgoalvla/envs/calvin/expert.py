@@ -118,8 +118,8 @@ def _place_script(ctx: SkillContext, layout: SceneLayout, where: str) -> Skill:
     if block is None:
         raise ExpertFailureError(f"{where}: no block is held")
     if where == "slider":
-        lo, hi = layout.cabinet_reach_interval(ctx)
-        x = ctx.rng.uniform(lo, hi) if hi > lo else 0.5 * (lo + hi)
+        lo, hi = layout.open_shelf_interval(ctx)  # the hand (0.22 m wide) fits only about centred
+        x = 0.5 * (lo + hi) + ctx.rng.uniform(-0.012, 0.012)
         y = layout.shelf_y + ctx.rng.uniform(-0.01, 0.01)
         surface = layout.shelf_top(ctx, x, y)
         return scripts.place_on(ctx, block, np.array([x, y]), surface, tilt=ctx.rng.uniform(0.95, 1.05))
@@ -177,8 +177,14 @@ def is_feasible(task: str, sim: CalvinSimulation) -> bool:
     held = held_block(ctx)
     parts = task.split("_")
     block = f"block_{parts[1]}" if parts[0] in ("rotate", "push", "lift") and parts[1] != "into" else None
-    if task == "place_in_slider":
-        return held is not None
+    if task == "place_in_slider":  # spec 4.1: at most one block per cabinet slot
+        lo, hi = layout.open_shelf_interval(ctx)
+        occupied = any(
+            (ctx.table_uid, ctx.links["plank_link"]) in ctx.block_contacts(b)
+            and lo - 0.03 < ctx.block_pose(b)[0][0] < hi + 0.03
+            for b in ctx.block_uids
+        )
+        return held is not None and not occupied
     if task == "place_in_drawer":
         return held is not None and ctx.joint_state("drawer_link") > layout.drawer_open_min
     if task == "stack_block":

@@ -200,6 +200,21 @@ class SkillContext:
                 f"could not reach {what} {np.round(pos, 3).tolist()} in {max_steps} steps"
             )
 
+    def transit(
+        self, pos: np.ndarray, euler: np.ndarray, front_y: float = -0.12, **servo_kwargs: Any
+    ) -> Skill:
+        """Free-space move that keeps clear of the cabinet front (door handle, switch): a move that crosses
+        more than 8 cm of x with an end closer to the cabinet than ``front_y`` goes back, across, then in."""
+        tcp, _ = self.tcp()
+        if abs(pos[0] - tcp[0]) > 0.08 and max(tcp[1], pos[1]) > front_y:
+            z = max(tcp[2], pos[2])
+            if tcp[1] > front_y:
+                yield from self.servo(
+                    np.array([tcp[0], front_y, z]), euler, tol=0.03, rot_tol=0.3, what="back off"
+                )
+            yield from self.servo(np.array([pos[0], front_y, z]), euler, tol=0.03, rot_tol=0.3, what="across")
+        yield from self.servo(pos, euler, **servo_kwargs)
+
     def hold(self, gripper: float, steps: int) -> Skill:
         """Keep the pose (zero motion) for ``steps`` steps while commanding ``gripper``."""
         self.gripper = gripper

@@ -21,6 +21,7 @@ from lerobot_subgoalvla.envs.calvin.expert_skills import (
     down_euler,
     ray_hits,
     tilted_euler,
+    wrap_angle,
 )
 
 #: Yaw of the TCP in CALVIN's neutral pose (spec 4.2 robot_obs[5]); grasp yaws are chosen near it.
@@ -108,7 +109,8 @@ def grasp(ctx: SkillContext, block: str, turn: float = 0.0, tilt: float = 0.0) -
     approach = np.array([0.0, np.sin(tilt), -np.cos(tilt)])  # hand -> fingertips
     ctx.gripper = GRIPPER_OPEN
     hover = pos - approach * ctx.rng.uniform(0.07, 0.11) + ctx.jitter(0.01) * [1, 1, 0]
-    yield from ctx.servo(hover, euler, tol=0.015, rot_tol=0.08, max_steps=100, what=f"above {block}")
+    move = ctx.transit if tilt else ctx.servo  # into the cabinet: keep clear of its front on the way
+    yield from move(hover, euler, tol=0.015, rot_tol=0.08, max_steps=100, what=f"above {block}")
     pos, rot = ctx.block_pose(block)
     target = pos + np.array([0, 0, ctx.rng.uniform(0.0, 0.006) + (0.006 if tilt else 0.0)])
     yield from ctx.servo(target - 0.03 * approach, euler, tol=0.01, what=f"pre-grasp {block}")
@@ -215,8 +217,13 @@ def place_on(
     offset = (tcp[2] - block_pos[2]) * np.cos(tilt)  # TCP height above the block centre
     drop = np.array([*target_xy, surface_z + half_height + offset + ctx.rng.uniform(0.008, 0.015)])
     if tilt:
-        euler = tilted_euler(euler[2], tilt)
-        yield from ctx.servo(
+        # Turn the wrist first so that the fingers close along x: tilting about x then keeps the block level
+        # sideways and the hand (wide along the closing axis) parallel to the cabinet opening.
+        yaw = min((np.pi / 2 + k * np.pi for k in (-1, 0, 1)), key=lambda y: abs(wrap_angle(y - euler[2])))
+        yield from ctx.servo(tcp + [0, 0, 0.02], down_euler(yaw), tol=0.015, rot_tol=0.06, max_steps=90,
+                             what="turn wrist")  # fmt: skip
+        euler = tilted_euler(yaw, tilt)
+        yield from ctx.transit(
             drop - 0.1 * approach, euler, tol=0.015, rot_tol=0.08, max_steps=100, what="front"
         )
     else:
