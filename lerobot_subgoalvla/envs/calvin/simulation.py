@@ -23,6 +23,7 @@ Example:
 from __future__ import annotations
 
 import logging
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,11 @@ PHYSICS_HZ = 240
 CONTROL_HZ = 30
 ACTION_REPEAT = PHYSICS_HZ // CONTROL_HZ  # 8 sub-steps per control step
 ROBOT_OBS_DIM = 15
+
+
+def _disconnect(client: BulletClient) -> None:
+    if client._client >= 0:  # BulletClient sets it to -1 on disconnect
+        client.disconnect()
 
 
 class CalvinSimulation:
@@ -73,6 +79,8 @@ class CalvinSimulation:
         source = load_scene_source(scene, assets_dir)  # validates names and files before connecting
         self.scene_name = scene
         self.client = BulletClient(connection_mode=pybullet.DIRECT)
+        # Disconnect at garbage collection or interpreter exit, before pybullet itself is torn down.
+        self._finalizer = weakref.finalize(self, _disconnect, self.client)
         try:
             c = self.client
             c.resetSimulation()
@@ -163,10 +171,7 @@ class CalvinSimulation:
 
     def close(self) -> None:
         """Disconnect the physics client (idempotent)."""
-        client = getattr(self, "client", None)
-        if client is not None and client._client >= 0:
-            client.disconnect()
-            client._client = -1
+        self._finalizer()
 
     def __enter__(self) -> CalvinSimulation:
         return self
