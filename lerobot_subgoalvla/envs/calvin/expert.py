@@ -202,7 +202,7 @@ def is_feasible(task: str, sim: CalvinSimulation) -> bool:
     if block is not None and task.endswith("_drawer"):
         return ctx.joint_state("drawer_link") > layout.drawer_open_min and layout.block_in_drawer(ctx, block)
     if block is not None:
-        on_table = _on_table(ctx, block)
+        on_table = _on_table(ctx, block) and layout.within_reach(ctx, block)
         if parts[0] == "push":
             return on_table and layout.push_room(ctx, block, 1.0 if parts[-1] == "right" else -1.0)
         return on_table

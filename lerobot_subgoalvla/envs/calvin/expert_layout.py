@@ -126,6 +126,11 @@ class SceneLayout:
         return self.drawer_x[0] + 0.07 <= x <= self.drawer_x[1] - 0.07
 
     # ---------------------------------------------------------------------------------------- desk
+    def within_reach(self, ctx: SkillContext, block: str, reach: float = 0.82) -> bool:
+        """Block within ``reach`` (horizontal) of the robot base: the Panda's top-down grasps fail beyond."""
+        base, _ = ctx.sim.client.getBasePositionAndOrientation(ctx.robot_uid)
+        return float(np.linalg.norm(ctx.block_pose(block)[0][:2] - np.asarray(base[:2]))) <= reach
+
     def push_room(self, ctx: SkillContext, block: str, direction: float) -> bool:
         """Room to push ``block`` 0.17 m along ``direction`` x: stays on the desk, misses button and blocks."""
         pos, _ = ctx.block_pose(block)
