@@ -17,7 +17,8 @@ Output and resumption: a split is written into ``ROOT.partial/`` as fixed-size p
 (``parts/part-XXXXXX``, each renamed into place only when complete), merged with LeRobot's
 ``aggregate_datasets``, optionally verified, and only then renamed to ``ROOT``: a folder at ``ROOT`` is
 always a complete dataset. ``--resume`` keeps the finished parts (the options must match the ones recorded in
-``ROOT.partial/options.json``); ``--overwrite`` deletes an existing ``ROOT`` / ``ROOT.partial`` first.
+``ROOT.partial/options.json``) and returns an already complete ``ROOT`` as is; ``--overwrite`` deletes an
+existing ``ROOT`` / ``ROOT.partial`` first. Without either, an existing ``ROOT`` or ``ROOT.partial`` is an error.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from tqdm import tqdm
 
@@ -46,6 +47,9 @@ from lerobot_subgoalvla.datasets_conversion.lerobot_parts import (
     merge_parts,
     write_part,
 )
+
+if TYPE_CHECKING:
+    from lerobot.datasets import LeRobotDataset
 
 logger = logging.getLogger(__name__)
 
@@ -104,9 +108,9 @@ def _run_parts(jobs: list[PartJob], workers: int, total_frames: int, desc: str) 
                 progress.update(frames)
 
 
-def _finish(partial: Path, root: Path, repo_id: str, jobs: list[PartJob], record: dict):
+def _finish(partial: Path, repo_id: str, jobs: list[PartJob], record: dict) -> Path:
     """Merge the parts (``lerobot_parts.merge_parts``), record the options and write the dataset card."""
-    from lerobot.datasets import LeRobotDataset, create_lerobot_dataset_card
+    from lerobot.datasets import create_lerobot_dataset_card
     from lerobot.datasets.io_utils import load_info
 
     merged = partial / "dataset"
@@ -129,7 +133,7 @@ def _finish(partial: Path, root: Path, repo_id: str, jobs: list[PartJob], record
         ),
     )
     card.save(merged / "README.md")
-    return LeRobotDataset(repo_id, root=merged, video_backend="pyav")
+    return merged
 
 
 def convert_split(
@@ -143,12 +147,18 @@ def convert_split(
     resume: bool = False,
     overwrite: bool = False,
     verify: bool = False,
-):
+) -> LeRobotDataset:
     """Convert one native split into a LeRobotDataset at ``root`` (see the module docstring).
 
     Returns:
         The finished ``LeRobotDataset`` (read mode, pyav video backend).
     """
+    from lerobot.datasets import LeRobotDataset
+
+    if resume and (root / "meta" / "info.json").is_file():  # finished earlier (maybe killed before clean-up)
+        logger.info("%s is already complete; nothing to resume", root)
+        shutil.rmtree(root.with_name(root.name + ".partial"), ignore_errors=True)
+        return LeRobotDataset(repo_id, root=root, video_backend="pyav")
     split = validate_split(split_dir, require_language=options.mode == "lang")
     episodes = select_episodes(split, options.mode, max_episodes)
     if not episodes:
@@ -171,16 +181,17 @@ def convert_split(
         for i in range(0, len(episodes), episodes_per_part)
     ]  # fmt: skip
     _run_parts(jobs, workers, sum(ep.length for ep in episodes), desc=f"{split.name} ({options.mode})")
-    dataset = _finish(partial, root, repo_id, jobs, record)
-    if verify:
+    merged = _finish(partial, repo_id, jobs, record)
+    if verify:  # before the rename: a dataset that fails verification never appears at ROOT
         from lerobot_subgoalvla.datasets_conversion.verify_dataset import verify_dataset
 
-        logger.info("verify: %s", verify_dataset(dataset, split, episodes, options).summary())
-    (partial / "dataset").rename(root)
+        report = verify_dataset(
+            LeRobotDataset(repo_id, root=merged, video_backend="pyav"), split, episodes, options
+        )
+        logger.info("verify: %s", report.summary())
+    merged.rename(root)
     shutil.rmtree(partial)
-    logger.info("wrote %d episodes / %d frames to %s", len(episodes), dataset.num_frames, root)
-    from lerobot.datasets import LeRobotDataset
-
+    logger.info("wrote %d episodes / %d frames to %s", len(episodes), sum(ep.length for ep in episodes), root)
     return LeRobotDataset(repo_id, root=root, video_backend="pyav")
 
 
@@ -196,7 +207,7 @@ def convert(
     split: Literal["training", "validation", "both"] = "training",
     push_to_hub: bool = False,
     **kwargs,
-) -> dict[str, object]:
+) -> dict[str, LeRobotDataset]:
     """Convert one or both splits of a native CALVIN dataset folder.
 
     With ``split="both"`` the splits become two datasets, ``ROOT/training`` (repo ``ID-training``) and

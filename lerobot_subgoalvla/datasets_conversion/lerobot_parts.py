@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import shutil
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Literal
@@ -169,11 +170,17 @@ def write_part(job: PartJob) -> int:
         streaming_encoding=job.options.image_format == "video",
     )
     frames = 0
-    for episode in job.episodes:
-        for frame in iter_frames(episode_arrays(split, episode, job.options)):
-            dataset.add_frame(frame)
-        dataset.save_episode()
-        frames += episode.length
+    # Read + decompress episode i+1 (zlib and numpy release the GIL) while LeRobot encodes episode i.
+    with ThreadPoolExecutor(max_workers=1) as reader:
+        pending = reader.submit(episode_arrays, split, job.episodes[0], job.options)
+        for i, episode in enumerate(job.episodes):
+            arrays = pending.result()
+            if i + 1 < len(job.episodes):
+                pending = reader.submit(episode_arrays, split, job.episodes[i + 1], job.options)
+            for frame in iter_frames(arrays):
+                dataset.add_frame(frame)
+            dataset.save_episode()
+            frames += episode.length
     dataset.finalize()
     tmp_dir.rename(job.final_dir)
     return frames

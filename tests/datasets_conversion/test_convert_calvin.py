@@ -195,3 +195,5 @@ def test_kill_and_resume_gives_identical_dataset(tmp_path: Path) -> None:
     assert resumed.num_episodes == 8 and resumed.num_frames == 8 * 20
     for key in want:
         np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+    again = convert(src, "local/k", root, options=options, episodes_per_part=1, resume=True)["training"]
+    assert again.num_frames == resumed.num_frames  # --resume on a complete ROOT returns it unchanged
