@@ -5,7 +5,7 @@ Everything is tiny (32x32 static / 16x16 gripper images, the ``tiny`` preset), o
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +24,16 @@ EPISODES, EPISODE_LEN = 3, 20
 STATIC_SIZE, GRIPPER_SIZE = 32, 16
 CHUNK_SIZE = 15
 FPS = 30
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _single_torch_thread() -> Iterator[None]:
+    """Run the tiny models on one thread: their matrices are so small that OpenMP threads only contend for the
+    shared cores (measured: a training step is ~100x slower with 2 threads on a loaded 2-core machine)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="session")

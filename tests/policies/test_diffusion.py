@@ -131,3 +131,19 @@ def test_ddim_recovers_data_from_an_oracle_denoiser(steps: int) -> None:
         oracle, (1, 4, 7), torch.zeros(1, 1, 16), generator=torch.Generator().manual_seed(0)
     )
     torch.testing.assert_close(out, target, atol=1e-4, rtol=1e-4)
+
+
+def test_clipping_keeps_samples_bounded_at_the_terminal_noise_level() -> None:
+    """With alpha_bar_7 = 3.7e-5 an imperfect noise prediction explodes unclipped DDIM; clipping bounds it."""
+    assert DiffusionObjective().noise_scheduler.alphas_cumprod[-1] < 1e-4
+    cond = torch.zeros(2, 1, 16)
+    gen = torch.Generator().manual_seed(0)
+    unclipped = DiffusionObjective(clip_sample_range=None).sample(
+        ConstantDenoiser(0.0), (2, 15, 7), cond, generator=gen
+    )
+    gen = torch.Generator().manual_seed(0)
+    clipped = DiffusionObjective(clip_sample_range=1.0).sample(
+        ConstantDenoiser(0.0), (2, 15, 7), cond, generator=gen
+    )
+    assert unclipped.abs().max() > 50
+    assert clipped.abs().max() <= 1.0 + 1e-6

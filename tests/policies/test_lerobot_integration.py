@@ -41,7 +41,7 @@ def _train_flags(dataset_root: Path, output_dir: Path, steps: int) -> list[str]:
         "--policy.device=cpu",
         "--policy.push_to_hub=false",
         "--policy.optimizer_lr_heads=3e-3",
-        f"--policy.stage2_start_step={SWITCH_STEP}",
+        f"--policy.stage2_start_step={SWITCH_STEP}",  # the DDP test overrides it (draccus: last flag wins)
         "--dataset.repo_id=local/tiny_calvin",
         f"--dataset.root={dataset_root}",
         "--dataset.video_backend=pyav",
@@ -132,24 +132,35 @@ def test_lerobot_train_resume_continues_from_the_last_checkpoint(trained_run: tu
 
 @pytest.mark.slow
 def test_accelerate_launch_two_cpu_processes(tiny_dataset_root: Path, tmp_path: Path) -> None:
+    """DDP over gloo on the CPU, across the stage switch (the frozen backbone gets no gradient in stage II).
+
+    ``accelerate launch --cpu --num_processes 2`` starts ONE process (accelerate's simple launcher); on a CPU-only
+    machine ``--multi_gpu --num_processes 2`` starts two torchrun workers and LeRobot's ``Accelerator(cpu=True)``
+    makes them a gloo process group.
+    """
     output_dir = tmp_path / "ddp"
-    flags = _train_flags(tiny_dataset_root, output_dir, 4)
-    flags = [f for f in flags if not f.startswith(("--log_freq", "--save_freq"))] + [
-        "--log_freq=2",
-        "--save_freq=4",
+    flags = [
+        f
+        for f in _train_flags(tiny_dataset_root, output_dir, 4)
+        if not f.startswith(("--log_freq", "--save_freq"))
     ]
-    command = [
+    flags += ["--log_freq=2", "--save_freq=4", "--policy.stage2_start_step=2"]
+    launcher = [
         str(BIN / "accelerate"),
         "launch",
+        "--multi_gpu",
         "--num_processes",
         "2",
-        "--cpu",
-        str(BIN / "lerobot-train"),
-        *flags,
+        "--num_machines",
+        "1",
     ]
-    output = _run(command, timeout=900)
-    assert (output_dir / "checkpoints" / "000004" / "pretrained_model" / "model.safetensors").is_file()
+    output = _run(
+        [*launcher, "--mixed_precision", "no", "--dynamo_backend", "no", str(BIN / "lerobot-train"), *flags]
+    )
     assert "Effective batch size: 4 x 2 = 8" in output
+    assert [stage for _, _, stage in _logged(output)] == [1.0, 2.0]
+    weights = load_file(output_dir / "checkpoints" / "000004" / "pretrained_model" / "model.safetensors")
+    assert int(weights["optimizer_steps"]) == 4
 
 
 @pytest.mark.parametrize(

@@ -167,3 +167,14 @@ def test_ablations_compute_finite_losses_and_backprop(overrides: dict, expect_pl
     actions, trace = model.eval().sample_actions(batch)
     assert actions.shape == (2, N, A)
     assert (trace is None) if not expect_planner else trace.shape == (2, model.config.subgoal_trace_len, P)
+
+
+def test_sampler_clip_range_follows_the_target_normalisation() -> None:
+    model = SubgoalVLAModel(make_config())  # actions MIN_MAX -> [-1, 1]; trace = states, MEAN_STD z-scores
+    assert model.generator_objective.sampler.config.clip_sample_range == 1.0
+    assert model.planner_objective.sampler.config.clip_sample_range == 4.0
+    config = make_config()
+    config.generator.clip_sample_range = 2.5
+    assert SubgoalVLAModel(config).generator_objective.sampler.config.clip_sample_range == 2.5
+    actions, _ = model.eval().sample_actions(make_batch(model))
+    assert actions.abs().max() <= 1.0 + 1e-6
