@@ -16,7 +16,11 @@ Choices where the paper is loose (also in docs/model.md):
 - DDIM with 10 steps but only 8 training timesteps (appendix B.2 vs tables 6-7): DDIM can only visit timesteps that
   exist, and diffusers rejects ``num_inference_steps > num_train_timesteps``. We cap the number of DDIM steps at the
   number of training timesteps (10 -> 8, i.e. every training timestep once, a deterministic DDIM walk) and log it.
-- ``clip_sample=False``: targets are normalised by the processor (mean/std or min/max), not guaranteed in [-1, 1].
+- Clipping: the 8-step squared-cosine schedule ends at alpha_bar_7 = 3.7e-5, so DDIM's first estimate of the clean
+  sample, ``(x - sqrt(1 - abar) eps_hat) / sqrt(abar)``, multiplies the noise-prediction error by 163 and the walk
+  diverges (a tiny model's samples reach 1e4). The sampler therefore clips that estimate to
+  ``[-clip_sample_range, clip_sample_range]`` (diffusers' ``clip_sample``), the bound of the normalised targets
+  (1 for min/max-normalised actions, as LeRobot's Diffusion Policy does). ``None`` disables clipping.
 
 Dimension legend: ``B`` batch, ``R`` repeats, ``T`` tokens (trace steps or action steps), ``X`` token features,
 ``Tc`` conditioning tokens, ``Dc`` conditioning width.
@@ -59,6 +63,7 @@ class DiffusionObjective:
         repeats: R, repeated diffusion steps per sample in training (8 in table 8).
         l2_weight: lambda of the l2 penalty on predictions (0.001 in appendix B.1).
         cond_dropout_prob: label dropout probability for classifier-free guidance (0.1 in appendix B.1).
+        clip_sample_range: DDIM clips its clean-sample estimate to +-this (normalised units); None = no clipping.
     """
 
     def __init__(
@@ -70,6 +75,7 @@ class DiffusionObjective:
         repeats: int = 8,
         l2_weight: float = 1e-3,
         cond_dropout_prob: float = 0.1,
+        clip_sample_range: float | None = 1.0,
     ) -> None:
         if repeats < 1:
             raise ValueError(f"repeats must be >= 1 (repeated diffusion steps per sample), got {repeats}")
@@ -84,7 +90,11 @@ class DiffusionObjective:
         # "trailing" spacing starts every DDIM walk at the noisiest timestep T-1 (pure noise is where sampling
         # starts), also when fewer steps than timesteps are taken.
         self.sampler = DDIMScheduler.from_config(
-            self.noise_scheduler.config, set_alpha_to_one=True, timestep_spacing="trailing"
+            self.noise_scheduler.config,
+            set_alpha_to_one=True,
+            timestep_spacing="trailing",
+            clip_sample=clip_sample_range is not None,
+            clip_sample_range=1.0 if clip_sample_range is None else clip_sample_range,
         )
         self.num_train_timesteps = num_train_timesteps
         self.num_inference_steps = self.effective_inference_steps(num_inference_steps)

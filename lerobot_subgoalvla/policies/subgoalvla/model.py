@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 
 import torch
+from lerobot.configs import FeatureType, NormalizationMode
 from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
 from torch import Tensor, nn
 
@@ -57,7 +58,11 @@ def _tiny_dims(config: SubgoalVLAConfig) -> TinyLlavaDims | None:
     )
 
 
-def _objective(head: DiTHeadConfig) -> DiffusionObjective:
+def _objective(head: DiTHeadConfig, target_normalization: NormalizationMode) -> DiffusionObjective:
+    """The head's diffusion objective; an unset clip range follows the target's normalisation (1 for MIN_MAX)."""
+    clip = head.clip_sample_range
+    if clip is None:
+        clip = 1.0 if target_normalization == NormalizationMode.MIN_MAX else 4.0
     return DiffusionObjective(
         num_train_timesteps=head.num_train_timesteps,
         num_inference_steps=head.num_inference_steps,
@@ -65,6 +70,7 @@ def _objective(head: DiTHeadConfig) -> DiffusionObjective:
         repeats=head.repeated_diffusion_steps,
         l2_weight=head.l2_weight,
         cond_dropout_prob=head.label_dropout,
+        clip_sample_range=clip,
     )
 
 
@@ -102,8 +108,9 @@ class SubgoalVLAModel(nn.Module):
         generator_queries = h + m if config.use_planner else h
         self.generator_aggregator = self._aggregator(config.generator_attention, generator_queries, width)
         self.generator = _dit(config.generator, self.action_dim, width)
-        self.planner_objective = _objective(config.planner)
-        self.generator_objective = _objective(config.generator)
+        norms = config.normalization_mapping
+        self.planner_objective = _objective(config.planner, norms[FeatureType.STATE.value])  # trace = states
+        self.generator_objective = _objective(config.generator, norms[FeatureType.ACTION.value])
 
     def _aggregator(self, attn: CrossAttentionConfig, num_queries: int, width: int) -> nn.Module:
         return build_aggregator(
