@@ -156,6 +156,11 @@ class DiTHeadConfig:
             (0.1, appendix B.1); enables CFG.
         l2_weight: lambda of the L2 penalty on the predicted noise (0.001, appendix B.1).
         repeated_diffusion_steps: timesteps sampled per training example ("repeated diffusion steps" 8, table 8).
+        clip_sample_range: bound on DDIM's estimate of the clean sample, in normalised units (diffusers
+            ``clip_sample_range``). Needed: the 8-step squared-cosine schedule ends at alpha_bar = 3.7e-5, so the
+            first DDIM step divides the noise-prediction error by sqrt(alpha_bar) (163x). Unset: 1.0 when the
+            head's target is MIN_MAX-normalised (it then lies in [-1, 1]: actions by default), else 4.0 (z-scores:
+            the trace under the default MEAN_STD state normalisation). Added by policy-core (model.py resolves it).
     """
 
     hidden_size: int | None = None
@@ -168,6 +173,7 @@ class DiTHeadConfig:
     label_dropout: float = 0.1
     l2_weight: float = 0.001
     repeated_diffusion_steps: int = 8
+    clip_sample_range: float | None = None
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -425,6 +431,8 @@ class SubgoalVLAConfig(PreTrainedConfig):
             _require_positive(f"{name}.{attr}", getattr(head, attr))
         _require_positive(f"{name}.num_inference_steps", head.num_inference_steps)
         _require_positive(f"{name}.repeated_diffusion_steps", head.repeated_diffusion_steps)
+        if head.clip_sample_range is not None:
+            _require_positive(f"{name}.clip_sample_range", head.clip_sample_range)
         if head.hidden_size % head.num_heads != 0:
             raise ValueError(
                 f"--policy.{name}.hidden_size={head.hidden_size} must be divisible by "
