@@ -178,3 +178,30 @@ def test_sampler_clip_range_follows_the_target_normalisation() -> None:
     assert SubgoalVLAModel(config).generator_objective.sampler.config.clip_sample_range == 2.5
     actions, _ = model.eval().sample_actions(make_batch(model))
     assert actions.abs().max() <= 1.0 + 1e-6
+
+
+@pytest.mark.slow
+def test_tiny_model_overfits_one_batch() -> None:
+    """Training reduces both losses and pulls the DDIM samples towards the demonstrated actions and trace."""
+    model = SubgoalVLAModel(make_config())
+    batch = make_batch(model)
+    batch["action"] = batch["action"].clamp(-1, 1)  # MIN_MAX-normalised actions live in [-1, 1]
+    batch["observation.subgoal_trace"] = batch["observation.subgoal_trace"].clamp(-3, 3)
+    optimizer = torch.optim.AdamW(model.parameters(), lr=2e-3)
+
+    def sample_errors() -> tuple[float, float]:
+        actions, trace = model.eval().sample_actions(batch, generator=torch.Generator().manual_seed(0))
+        model.train()
+        trace_error = (trace - batch["observation.subgoal_trace"]).pow(2).mean().item()
+        return (actions - batch["action"])[~batch["action_is_pad"]].pow(2).mean().item(), trace_error
+
+    before, first = sample_errors(), model.compute_losses(batch, "stage1")
+    for _ in range(400):
+        losses = model.compute_losses(batch, "stage1")
+        optimizer.zero_grad()
+        losses["loss"].backward()
+        optimizer.step()
+    after = sample_errors()
+    assert losses["generator_loss"] < 0.5 * first["generator_loss"]
+    assert losses["planner_loss"] < 0.5 * first["planner_loss"]
+    assert after[0] < 0.5 * before[0] and after[1] < 0.5 * before[1]
