@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pickle
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import gymnasium as gym
 import pytest
@@ -10,8 +12,9 @@ from lerobot.configs import FeatureType
 from lerobot.envs.configs import EnvConfig
 from lerobot.envs.utils import FreezeAfterEpisodeEnd, env_to_policy_features
 
-from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
+from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS, TASK_NAMES
 from lerobot_subgoalvla.envs.calvin.configs import GYM_ID, CalvinEnvConfig
+from lerobot_subgoalvla.envs.calvin.env import official_chains
 
 
 def test_registered_as_calvin() -> None:
@@ -65,22 +68,39 @@ def test_gym_kwargs_round_trip_into_env_arguments() -> None:
     assert kwargs["results_path"] == "/tmp/r.jsonl"
 
 
-def test_create_envs_one_lazy_task_id_per_chain() -> None:
-    cfg = CalvinEnvConfig(chain_start=3, chain_stop=6, static_image_size=16, gripper_image_size=16)
+def test_create_envs_one_task_id_per_chain_sharing_one_lazy_vector_env() -> None:
+    cfg = CalvinEnvConfig(
+        chain_start=3, chain_stop=6, episode_length=4, static_image_size=16, gripper_image_size=16
+    )
     envs = cfg.create_envs(n_envs=2, use_async_envs=False)
     assert list(envs) == ["calvin"]
     assert list(envs["calvin"]) == [3, 4, 5]
     vec = envs["calvin"][4]
+    shared = vec._shared
+    assert all(view._shared is shared for view in envs["calvin"].values())
+    assert shared.num_alive == 0  # nothing simulated until lerobot-eval resets a task
     assert vec.num_envs == 2
-    assert not vec.is_alive  # nothing simulated until lerobot-eval resets it
     assert vec.single_observation_space["pixels"]["static"].shape == (16, 16, 3)
     assert vec.observation_space["agent_pos"].shape == (2, 15)
     assert vec.metadata["render_fps"] == 30
-    # Each sub-env factory is a standard-picklable partial building a frozen CalvinEnv bound to chain 4.
-    factory = pickle.loads(pickle.dumps(vec._env_fns[0]))
-    env = factory()
+    # Each view pins its chain into reset, whatever LeRobot's rollout passes; one vector env serves all.
+    for cid in (5, 3, 4):
+        _, info = envs["calvin"][cid].reset(seed=[0, 1], options={"lerobot_new_rollout": True})
+        assert list(info["chain_id"]) == [cid, cid]
+        expected = EVAL_INSTRUCTIONS[official_chains()[cid].tasks[0]]
+        assert envs["calvin"][cid].call("task_description") == (expected, expected)
+    assert shared.num_alive == 1
+    for view in envs["calvin"].values():
+        view.close()
+    assert shared.num_alive == 0
+
+
+def test_sub_env_factory_pickles_with_the_standard_pickle() -> None:
+    cfg = CalvinEnvConfig(chain_start=7, chain_stop=9, static_image_size=16, gripper_image_size=16)
+    view = cfg.create_envs(n_envs=1)["calvin"][8]
+    env = pickle.loads(pickle.dumps(view._shared.env_fns[0]))()
     assert isinstance(env, FreezeAfterEpisodeEnd)
-    assert list(env.unwrapped.chain_ids) == [4]
+    assert list(env.unwrapped.chain_ids) == [7, 8]
     env.close()
 
 
@@ -90,18 +110,21 @@ def test_create_envs_single_task_uses_the_calvin_task_id() -> None:
     assert list(envs["calvin"]) == [TASK_NAMES.index("turn_on_led")]
 
 
-def test_live_pool_keeps_at_most_max_parallel_tasks_alive() -> None:
-    cfg = CalvinEnvConfig(chain_start=0, chain_stop=3, static_image_size=16, gripper_image_size=16)
+def test_each_evaluating_thread_gets_its_own_vector_env() -> None:
+    cfg = CalvinEnvConfig(chain_start=0, chain_stop=2, static_image_size=16, gripper_image_size=16)
     envs = cfg.create_envs(n_envs=1)["calvin"]
-    descriptions = [envs[cid].call("task_description")[0] for cid in range(3)]
-    assert [envs[cid].is_alive for cid in range(3)] == [False, False, True]
-    assert all(isinstance(text, str) and text for text in descriptions)
-    # A released env is rebuilt on its next use.
-    assert envs[0].call("task_description")[0] == descriptions[0]
-    assert envs[0].is_alive and not envs[2].is_alive
-    for vec in envs.values():
-        vec.close()
-    assert isinstance(envs[0].single_action_space, gym.spaces.Box)
+    both_running = threading.Barrier(2)
+
+    def vector_env_of_this_thread(cid: int) -> int:
+        built = envs[cid]._shared.get()
+        both_running.wait(timeout=120)  # two threads evaluate at the same time
+        return id(built)
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        built = list(pool.map(vector_env_of_this_thread, [0, 1]))
+    assert len(set(built)) == 2 == envs[0]._shared.num_alive
+    assert envs[0]._shared.get() is envs[0]._shared.get()  # same thread, same vector env
+    envs[0].close()
 
 
 def test_gymnasium_make_builds_a_calvin_env() -> None:

@@ -7,15 +7,16 @@ chain_stop)`` exactly once; disjoint chain ranges shard an evaluation across pro
 single-task mode (``task=<one of the 34 task names>``) there is one ``task_id``, the task's CALVIN id, and each
 episode starts from a random valid state drawn from the episode's seed.
 
-The vector envs are created lazily and at most ``max_parallel_tasks`` of them are alive at once
-(``_LazyVectorEnv``): ``lerobot-eval`` builds all 1000 chain envs up front but evaluates them one after the
-other, and 1000 live PyBullet clients (or process pools) would not fit in memory.
+All task_ids share the simulators: each task_id is a view (``_TaskView``) on one lazily built vector env per
+evaluating thread (``_SharedVectorEnvs``); a chain's view pins its ``chain_id`` into every ``reset``.
+``lerobot-eval`` builds all 1000 task_ids up front and evaluates them one after the other (or
+``max_parallel_tasks`` at a time, one thread each), so one set of simulators (and, with async envs, one pool of
+worker processes) per thread serves all chains, instead of 1000 of them being started, or kept alive.
 """
 
 from __future__ import annotations
 
 import threading
-from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
@@ -165,30 +166,32 @@ class CalvinEnvConfig(EnvConfig):
             use_async_envs: One forkserver worker process per sub-env (when ``n_envs > 1``).
 
         Returns:
-            One lazily created vector env per chain id (``lh_mtlc``) or one for the task's CALVIN id.
+            One view per chain id (``lh_mtlc``) or one for the task's CALVIN id, all sharing the simulators.
         """
         if n_envs < 1:
             raise ValueError(f"--eval.batch_size must be >= 1 for the calvin env, got {n_envs}")
         from lerobot_subgoalvla.envs.calvin.env import CalvinEnv, official_chains  # imports the simulator
 
-        pool = _LivePool(max_alive=max(1, self.max_parallel_tasks))
-        use_async = use_async_envs and n_envs > 1
-        probe = CalvinEnv(**self.gym_kwargs)  # cheap: the simulator is created on the first reset
-        spaces = (probe.observation_space, probe.action_space, dict(probe.metadata))
-        probe.close()
+        kwargs: dict[str, Any] = dict(self.gym_kwargs)
         if self.task == LH_MTLC:
             chains = official_chains()  # once here, not in every worker process
-            groups = {
-                cid: {"chain_start": cid, "chain_stop": cid + 1, "chains": {cid: chains[cid]}}
-                for cid in self.chain_ids
-            }
+            kwargs.update(
+                chain_start=self.chain_start,
+                chain_stop=self.chain_stop,
+                chains={cid: chains[cid] for cid in self.chain_ids},
+            )
+            pinned = {cid: {"chain_id": cid} for cid in self.chain_ids}
         else:
-            groups = {TASK_NAMES.index(self.task): {}}
-        envs = {}
-        for task_id, extra in groups.items():
-            fns = [partial(make_frozen_env, **self.gym_kwargs, **extra) for _ in range(n_envs)]
-            envs[task_id] = _LazyVectorEnv(fns, use_async, pool, *spaces)
-        return {self.type: envs}
+            pinned = {TASK_NAMES.index(self.task): {}}
+        probe = CalvinEnv(**kwargs)  # cheap: the simulator is created on the first reset
+        spaces = (probe.observation_space, probe.action_space, dict(probe.metadata))
+        probe.close()
+        shared = _SharedVectorEnvs(
+            [partial(make_frozen_env, **kwargs)] * n_envs, use_async_envs and n_envs > 1
+        )
+        return {
+            self.type: {task_id: _TaskView(shared, options, *spaces) for task_id, options in pinned.items()}
+        }
 
 
 def make_frozen_env(**kwargs: Any) -> gym.Env:
@@ -202,51 +205,65 @@ def make_frozen_env(**kwargs: Any) -> gym.Env:
     return FreezeAfterEpisodeEnd(CalvinEnv(**kwargs))
 
 
-class _LivePool:
-    """Keeps at most ``max_alive`` lazily created vector envs alive, closing the least recently used one."""
+class _SharedVectorEnvs:
+    """One Sync/AsyncVectorEnv per calling thread, built on first use and shared by all task_id views.
 
-    def __init__(self, max_alive: int) -> None:
-        self.max_alive = max_alive
-        self._live: OrderedDict[int, _LazyVectorEnv] = OrderedDict()
+    ``lerobot-eval`` runs task_ids sequentially in one thread, or ``max_parallel_tasks`` at a time in a thread
+    pool; keying by thread gives each concurrently evaluated task its own simulators. Autoreset is
+    ``NEXT_STEP`` with ``FreezeAfterEpisodeEnd`` sub-envs, as LeRobot recommends (plugin guide 3.2).
+    """
+
+    def __init__(self, env_fns: list[Callable[[], gym.Env]], use_async: bool) -> None:
+        self.env_fns = env_fns
+        self.use_async = use_async
+        self._envs: dict[int, gym.vector.VectorEnv] = {}
         self._lock = threading.Lock()
 
-    def touch(self, env: _LazyVectorEnv) -> None:
-        """Mark ``env`` as used now; close the least recently used others beyond ``max_alive``."""
+    @property
+    def num_alive(self) -> int:
+        """How many vector envs (sets of simulators or worker pools) exist now."""
+        return len(self._envs)
+
+    def get(self) -> gym.vector.VectorEnv:
+        """The calling thread's vector env (built now if it has none)."""
+        key = threading.get_ident()
         with self._lock:
-            self._live[id(env)] = env
-            self._live.move_to_end(id(env))
-            while len(self._live) > self.max_alive:
-                _, victim = self._live.popitem(last=False)
-                victim.release()
+            if key not in self._envs:
+                mode = gym.vector.AutoresetMode.NEXT_STEP
+                if self.use_async:
+                    self._envs[key] = gym.vector.AsyncVectorEnv(
+                        self.env_fns, context="forkserver", autoreset_mode=mode
+                    )
+                else:
+                    self._envs[key] = gym.vector.SyncVectorEnv(self.env_fns, autoreset_mode=mode)
+            return self._envs[key]
 
-    def forget(self, env: _LazyVectorEnv) -> None:
+    def close(self) -> None:
+        """Close every vector env; a later use builds a new one."""
         with self._lock:
-            self._live.pop(id(env), None)
+            envs, self._envs = list(self._envs.values()), {}
+        for env in envs:
+            env.close()
 
 
-class _LazyVectorEnv:
-    """A Sync/AsyncVectorEnv built on first use and released when the pool needs room.
+class _TaskView:
+    """The vector env of one task_id: the shared simulators, with this task's options pinned into ``reset``.
 
-    Released envs are rebuilt transparently on their next use, so releasing never breaks a caller; it only
-    costs the simulator's start-up. ``lerobot-eval`` evaluates task_ids one after the other (or
-    ``max_parallel_tasks`` at a time), so only the ones in use are alive. Autoreset is ``NEXT_STEP`` with
-    ``FreezeAfterEpisodeEnd`` sub-envs, as LeRobot recommends (plugin guide 3.2).
+    Quacks like the ``VectorEnv`` that ``lerobot-eval``'s rollout uses (``num_envs``, spaces, ``metadata``,
+    ``unwrapped``, ``reset``, ``step``, ``call``, ``get_attr``, ``render``, ``close``).
     """
 
     def __init__(
         self,
-        env_fns: list[Callable[[], gym.Env]],
-        use_async: bool,
-        pool: _LivePool,
+        shared: _SharedVectorEnvs,
+        reset_options: dict[str, Any],
         single_observation_space: gym.Space,
         single_action_space: gym.Space,
         metadata: dict[str, Any],
     ) -> None:
-        self._env_fns = env_fns
-        self._use_async = use_async
-        self._pool = pool
-        self._env: gym.vector.VectorEnv | None = None
-        self.num_envs = len(env_fns)
+        self._shared = shared
+        self._reset_options = reset_options
+        self.num_envs = len(shared.env_fns)
         self.single_observation_space = single_observation_space
         self.single_action_space = single_action_space
         self.observation_space = batch_space(single_observation_space, self.num_envs)
@@ -254,47 +271,24 @@ class _LazyVectorEnv:
         self.metadata = metadata
 
     @property
-    def unwrapped(self) -> _LazyVectorEnv:
+    def unwrapped(self) -> _TaskView:
         return self
 
-    @property
-    def is_alive(self) -> bool:
-        """Whether the underlying vector env (and its simulators or worker processes) exists now."""
-        return self._env is not None
-
-    def _ensure(self) -> gym.vector.VectorEnv:
-        self._pool.touch(self)
-        if self._env is None:
-            mode = gym.vector.AutoresetMode.NEXT_STEP
-            if self._use_async:
-                self._env = gym.vector.AsyncVectorEnv(
-                    self._env_fns, context="forkserver", autoreset_mode=mode
-                )
-            else:
-                self._env = gym.vector.SyncVectorEnv(self._env_fns, autoreset_mode=mode)
-        return self._env
-
-    def reset(self, **kwargs: Any) -> tuple[dict, dict]:
-        return self._ensure().reset(**kwargs)
+    def reset(self, *, seed: Any = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+        return self._shared.get().reset(seed=seed, options={**(options or {}), **self._reset_options})
 
     def step(self, actions: Any) -> tuple:
-        return self._ensure().step(actions)
+        return self._shared.get().step(actions)
 
     def call(self, name: str, *args: Any, **kwargs: Any) -> tuple:
-        return self._ensure().call(name, *args, **kwargs)
+        return self._shared.get().call(name, *args, **kwargs)
 
     def get_attr(self, name: str) -> tuple:
-        return self._ensure().get_attr(name)
+        return self._shared.get().get_attr(name)
 
     def render(self) -> tuple:
-        return self._ensure().render()
-
-    def release(self) -> None:
-        """Close the underlying vector env; the next use rebuilds it."""
-        if self._env is not None:
-            self._env.close()
-            self._env = None
+        return self._shared.get().render()
 
     def close(self) -> None:
-        self._pool.forget(self)
-        self.release()
+        """Close the shared vector envs (``close_envs`` closes every view; later use rebuilds them)."""
+        self._shared.close()
