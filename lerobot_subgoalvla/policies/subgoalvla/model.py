@@ -50,7 +50,8 @@ from lerobot_subgoalvla.policies.subgoalvla.proprio_attention import build_aggre
 ACTION_IS_PAD_KEY = "action_is_pad"
 
 
-def _tiny_dims(config: SubgoalVLAConfig) -> TinyLlavaDims | None:
+def tiny_backbone_dims(config: SubgoalVLAConfig) -> TinyLlavaDims | None:
+    """The tiny LLaVA dimensions of ``config.backbone``; None for a pretrained backbone."""
     if config.backbone.name_or_path is not None:
         return None
     return TinyLlavaDims(
@@ -93,7 +94,7 @@ class SubgoalVLAModel(nn.Module):
         bb = config.backbone
         if backbone is None:
             backbone = VLMBackbone(
-                bb.name_or_path, bb.layer, bb.freeze_vision_tower, _tiny_dims(config), bb.torch_dtype
+                bb.name_or_path, bb.layer, bb.freeze_vision_tower, tiny_backbone_dims(config), bb.torch_dtype
             )
         self.backbone = backbone
         self.state_dim = config.input_features[STATE_KEY].shape[-1]
