@@ -7,7 +7,9 @@ repeatedly pick a random task that is feasible *now* (``is_feasible``), run ``Sc
 done (at most ``max_steps_per_task`` steps), and let the oracle (``TaskOracle.is_completed`` on the info
 dicts at the task's first and last frame) decide whether the task really fired; only then does the span
 become a language window, labelled with one of CALVIN's training annotations of that task
-(``calvin_vocab.TRAINING_ANNOTATIONS``). Failed attempts stay in the segment as unlabelled play.
+(``calvin_vocab.TRAINING_ANNOTATIONS``). Failed attempts stay in the segment as unlabelled play; when no task
+is feasible afterwards (e.g. a missed grasp left the gripper closed), a short recorded release-and-lift motion
+is played before the segment gives up.
 
 Per frame t (spec 1.6): ``robot_obs[t]``, ``scene_obs[t]``, the camera images of state t, ``actions[t]`` =
 [TCP position and euler of state t+1, the gripper command of step t] and ``rel_actions[t]`` derived from
@@ -33,6 +35,9 @@ from lerobot_subgoalvla.calvin_vocab import TASK_NAMES, TRAINING_ANNOTATIONS
 logger = logging.getLogger(__name__)
 
 POS_SCALE, ORN_SCALE = 0.02, 0.05  # spec 1.6: rel = clip(delta, -scale, scale) / scale
+#: Recorded "release and lift" motion when no task is feasible (gripper open, TCP up 1 cm per step).
+RECOVERY_ACTION = np.array([0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0])
+RECOVERY_STEPS = 10
 
 
 def relative_actions(actions: np.ndarray, robot_obs: np.ndarray) -> np.ndarray:
@@ -153,6 +158,10 @@ def record_segment(
             annotation = str(rng.choice(TRAINING_ANNOTATIONS[task]))
             windows.append((start_frame, recorder.frame, annotation, task))  # end may be the unsaved state
         feasible = [name for name in tasks if is_feasible(name, sim)]
+        if not feasible:  # e.g. a missed grasp left the gripper closed on nothing: open it and back off
+            for _ in range(RECOVERY_STEPS):
+                recorder.step(RECOVERY_ACTION)
+            feasible = [name for name in tasks if is_feasible(name, sim)]
         task = str(rng.choice(feasible)) if feasible else None
     frames = recorder.arrays()
     last = len(recorder.commands) - 1

@@ -149,10 +149,11 @@ def _assemble_split(output: Path, name: str, jobs: list[SegmentJob], opts: Gener
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     rows, indx, anns, tasks, lowdim = [], [], [], [], {"robot_obs": [], "scene_obs": [], "actions": []}
-    next_id = 0
+    next_id, attempted, completed = 0, 0, 0
     for job in jobs:
         summary = json.loads((job.directory / "segment.json").read_text())
         num = summary["num_frames"]
+        attempted, completed = attempted + len(summary["attempted"]), completed + len(summary["completed"])
         if num == 0:
             continue
         for t in range(num):
@@ -174,7 +175,10 @@ def _assemble_split(output: Path, name: str, jobs: list[SegmentJob], opts: Gener
     stacked = {key: np.stack(values) for key, values in lowdim.items()}
     write_statistics(tmp, compute_statistics(stacked["robot_obs"], stacked["scene_obs"], stacked["actions"]))
     tmp.rename(output / name)
-    logger.info("%s: %d segments, %d frames, %d language windows", name, len(rows), next_id, len(indx))
+    logger.info(
+        "%s: %d segments, %d frames, %d language windows (%d of %d task attempts confirmed by the oracle)",
+        name, len(rows), next_id, len(indx), completed, attempted,
+    )  # fmt: skip
 
 
 def _check_options(segments_dir: Path, opts: GeneratorOptions) -> None:
