@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import pytest
 import torch
 from lerobot.configs import FeatureType, PolicyFeature
@@ -14,15 +12,6 @@ from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import Subg
 from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
 
 P, A, H, M, N = 15, 7, 15, 8, 15
-
-
-@pytest.fixture(autouse=True)
-def _single_thread() -> Iterator[None]:
-    """One intra-op thread: on a shared 2-core machine, oversubscribed BLAS threads make tiny ops 100x slower."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def make_config(**overrides: object) -> SubgoalVLAConfig:
