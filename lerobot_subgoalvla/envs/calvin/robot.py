@@ -9,6 +9,9 @@ Two URDFs, one behaviour:
   between the finger tips; the gripper camera has no link there and is placed at CALVIN's offset from the hand
   (hand + (-0.1, 0, 0), rpy (1.3, 0, -1.57)). Fingers = joints 9, 10. The finger contact parameters of CALVIN's
   URDF (lateral friction 1, spinning 0.1, stiffness 30000, damping 1000, friction anchor) are applied by code.
+  Its visual meshes (~100k triangles) are replaced by its own collision meshes (~3.5k): TinyRenderer's cost grows
+  with the triangle count, and this makes the static camera about 15 ms (~30 %) cheaper per frame
+  (``benchmarks/env_benchmark.py``); the arm looks faceted, which no CALVIN data depends on.
 
 Arm joints 0-6 and the observation layout (robot_obs, spec 1.4) are the same for both.
 
@@ -26,6 +29,7 @@ Action semantics (spec 1.6, 3.5):
 from __future__ import annotations
 
 import logging
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -66,6 +70,8 @@ class RobotSpec:
         camera_link: Link carrying the gripper camera, or ``None`` to place the camera at
             :data:`CAMERA_FROM_HAND` relative to the hand link.
         set_finger_contacts: Apply CALVIN's finger contact parameters by code (the URDF lacks them).
+        low_poly_visuals: Render the URDF's collision meshes instead of its visual meshes (pybullet's
+            bundled Panda only: its ``meshes/visual`` and ``meshes/collision`` folders).
     """
 
     urdf: Path
@@ -73,18 +79,29 @@ class RobotSpec:
     finger_joints: tuple[int, int]
     camera_link: int | None
     set_finger_contacts: bool
+    low_poly_visuals: bool = False
 
 
 def procedural_robot_spec() -> RobotSpec:
     """pybullet's bundled Panda: TCP = ``panda_grasptarget`` (hand + 0.105 m), fingers 9 and 10."""
-    return RobotSpec(
-        Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf", 11, (9, 10), None, True
-    )
+    urdf = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
+    return RobotSpec(urdf, 11, (9, 10), None, set_finger_contacts=True, low_poly_visuals=True)
 
 
 def calvin_robot_spec(data_dir: Path) -> RobotSpec:
     """CALVIN's ``panda_longer_finger.urdf``: TCP link 15, gripper camera link 14, fingers 9 and 11 (spec 3.5)."""
     return RobotSpec(data_dir / "franka_panda" / "panda_longer_finger.urdf", 15, (9, 11), 14, False)
+
+
+def _low_poly_urdf(urdf: Path) -> str:
+    """The URDF text with every mesh taken from ``meshes/collision`` by absolute path (see the module docstring)."""
+    collision_dir = (urdf.parent / "meshes" / "collision").as_posix() + "/"
+    text = urdf.read_text()
+    for prefix in ("package://meshes/visual/", "package://meshes/collision/"):
+        text = text.replace(prefix, collision_dir)
+    if "package://" in text:
+        raise ValueError(f"{urdf}: unexpected mesh paths; cannot build the low-poly variant")
+    return text
 
 
 def validate_action(action: np.ndarray | list[float]) -> np.ndarray:
@@ -121,7 +138,13 @@ class PandaRobot:
     def load(self) -> None:
         """Load the URDF (body uid 0 in a fresh world), the visual base cylinder and the finger gear (spec 3.1)."""
         c = self.client
-        self.uid = c.loadURDF(str(self.spec.urdf), ROBOT_BASE_POSITION, (0, 0, 0, 1), useFixedBase=True)
+        if self.spec.low_poly_visuals:
+            with tempfile.TemporaryDirectory(prefix="subgoalvla_panda_") as tmp:
+                urdf = Path(tmp) / "panda_low_poly.urdf"
+                urdf.write_text(_low_poly_urdf(self.spec.urdf))
+                self.uid = c.loadURDF(str(urdf), ROBOT_BASE_POSITION, (0, 0, 0, 1), useFixedBase=True)
+        else:
+            self.uid = c.loadURDF(str(self.spec.urdf), ROBOT_BASE_POSITION, (0, 0, 0, 1), useFixedBase=True)
         base_x, base_y, base_z = ROBOT_BASE_POSITION
         cylinder = c.createVisualShape(
             pybullet.GEOM_CYLINDER,
