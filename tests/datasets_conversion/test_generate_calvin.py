@@ -106,3 +106,21 @@ def test_option_errors(tmp_path: Path) -> None:
     (tmp_path / "out" / ".segments" / "options.json").write_text("{}")
     with pytest.raises(ValueError, match="other options"):
         generate(tmp_path / "out", OPTIONS)
+
+
+@pytest.mark.calvin_assets
+@pytest.mark.parametrize("scene", ["calvin_A", "calvin_B", "calvin_C", "calvin_D"])
+def test_quirk_table_matches_simulation_slot_order(scene: str, calvin_assets_dir: Path) -> None:
+    from lerobot_subgoalvla.datasets_conversion.calvin_quirks import block_order_of
+    from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+
+    sim = CalvinSimulation(scene, calvin_assets_dir, cameras=False)
+    try:
+        slots = tuple(name.removeprefix("block_") for name in sim.block_names)
+    finally:
+        sim.close()
+    opts = GeneratorOptions(
+        num_tasks=2, seed=0, scene=scene, assets_dir=str(calvin_assets_dir), val_fraction=0.0
+    )
+    assert opts.scene_name == scene.replace("calvin_", "calvin_scene_")
+    assert slots == block_order_of(opts.scene_name)
