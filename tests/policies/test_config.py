@@ -85,7 +85,7 @@ def test_saved_config_reloads_exactly(tmp_path) -> None:
         (["--generator.num_inference_steps=10"], "must be <= --policy.generator.num_train_timesteps=8"),
         (["--planner.hidden_size=30", "--planner.num_heads=4"], "must be divisible by"),
         (["--preset=paper", "--backbone.image_size=64"], "only applies to the tiny backbone"),
-        (["--stage=stage2", "--stage2_start_step=3"], "only applies with --policy.stage=stage1"),
+        (["--stage2_start_step=-1"], "stage2_start_step must be >= 0"),
         (["--use_planner=false", "--stage=stage2"], "w/o SP"),
         (["--backbone.image_size=30"], "must be a multiple of"),
     ],
@@ -154,6 +154,9 @@ def test_delta_indices_and_stage_schedule() -> None:
     assert cfg.action_delta_indices == list(range(15))
     assert [cfg.stage_at(s) for s in (0, 4, 5, 100)] == ["stage1", "stage1", "stage2", "stage2"]
     assert parse("--stage=stage2").stage_at(0) == "stage2"
+    assert (
+        parse("--stage=stage2", "--stage2_start_step=5").stage_at(0) == "stage2"
+    )  # continuing a stage I ckpt
 
 
 def test_optimizer_and_scheduler_presets_follow_table_8() -> None:

@@ -130,6 +130,30 @@ def test_lerobot_train_resume_continues_from_the_last_checkpoint(trained_run: tu
     assert reloaded.stage == "stage2"
 
 
+def test_stage_two_run_starts_from_a_stage_one_checkpoint(
+    trained_run: tuple[Path, str], tiny_dataset_root, tmp_path
+):
+    """``--policy.path=<stage I checkpoint> --policy.stage=stage2``: LeRobot's fine-tuning path (processors reloaded
+    with the dataset's statistics as overrides)."""
+    output_dir, _ = trained_run
+    checkpoint = output_dir / "checkpoints" / "000008" / "pretrained_model"
+    flags = [
+        f for f in _train_flags(tiny_dataset_root, tmp_path / "stage2", 2) if not f.startswith("--policy.")
+    ]
+    flags = [f for f in flags if not f.startswith(("--log_freq", "--save_freq"))] + [
+        "--log_freq=2",
+        "--save_freq=2",
+    ]
+    output = _run(
+        [str(BIN / "lerobot-train"), f"--policy.path={checkpoint}", "--policy.stage=stage2", *flags]
+    )
+    assert [stage for _, _, stage in _logged(output)] == [2.0]
+    weights = load_file(
+        tmp_path / "stage2" / "checkpoints" / "000002" / "pretrained_model" / "model.safetensors"
+    )
+    assert int(weights["optimizer_steps"]) == SWITCH_STEP + 2  # the counter carries over from the checkpoint
+
+
 @pytest.mark.slow
 def test_accelerate_launch_two_cpu_processes(tiny_dataset_root: Path, tmp_path: Path) -> None:
     """DDP over gloo on the CPU, across the stage switch (the frozen backbone gets no gradient in stage II).

@@ -265,7 +265,8 @@ class SubgoalVLAConfig(PreTrainedConfig):
             Start a stage II run from a stage I checkpoint with ``--policy.path=<ckpt> --policy.stage=stage2``.
         stage2_start_step: with ``stage=stage1``, the optimizer step at which the same run switches to stage II
             (None: never). The policy counts steps in a saved buffer, so ``--resume=true`` continues in the
-            right stage.
+            right stage. With ``stage=stage2`` every step is stage II, so a stage I checkpoint that had a switch
+            step can be continued with ``--policy.stage=stage2`` as it is.
         optimizer_lr_projector: learning rate of the vision-to-language projector (1e-5, table 8).
         optimizer_lr_llm: learning rate of the LLM (2e-5, table 8).
         optimizer_lr_heads: learning rate of the PCA modules and both DiT heads (1e-4, table 8); also the
@@ -366,11 +367,8 @@ class SubgoalVLAConfig(PreTrainedConfig):
             raise ValueError(
                 f"--policy.n_action_steps={self.n_action_steps} must be <= --policy.chunk_size={self.chunk_size}"
             )
-        if self.stage2_start_step is not None:
-            if self.stage != "stage1":
-                raise ValueError("--policy.stage2_start_step only applies with --policy.stage=stage1")
-            if self.stage2_start_step < 0:
-                raise ValueError(f"--policy.stage2_start_step must be >= 0, got {self.stage2_start_step}")
+        if self.stage2_start_step is not None and self.stage2_start_step < 0:
+            raise ValueError(f"--policy.stage2_start_step must be >= 0, got {self.stage2_start_step}")
         if not self.use_planner and (self.stage == "stage2" or self.stage2_start_step is not None):
             raise ValueError(
                 "--policy.use_planner=false (w/o SP) has no stage II: drop --policy.stage/stage2_start_step"
