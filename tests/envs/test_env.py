@@ -240,6 +240,10 @@ def test_bad_actions_raise(chain_env: CalvinEnv, action: np.ndarray, message: st
         ({"scene_obs": np.zeros((2, 24))}, r"scene_obs must have shape \(24,\)"),
         ({"scene_obs": np.full(24, np.nan)}, "scene_obs contains NaN"),
         ({"robot_obs": np.r_[np.zeros(14), np.inf]}, "robot_obs contains NaN or inf"),
+        (
+            {"robot_ob": np.zeros(15)},
+            r"Unknown CalvinEnv reset option\(s\) \['robot_ob'\]; valid: chain_id, ",
+        ),
     ],
 )
 def test_bad_reset_states_raise(chain_env: CalvinEnv, options: dict, message: str) -> None:
@@ -249,6 +253,8 @@ def test_bad_reset_states_raise(chain_env: CalvinEnv, options: dict, message: st
 
 def test_reset_from_given_states() -> None:
     env = CalvinEnv("turn_off_led", episode_length=4, **SMALL)
+    with pytest.raises(ValueError, match="Unknown CalvinEnv reset option"):
+        env.reset(options={"chain_id": 3})  # chains exist only in lh_mtlc
     scene_obs = official_chains()[0].scene_obs.copy()
     obs, _ = env.reset(seed=0, options={"robot_obs": EVAL_ROBOT_OBS, "scene_obs": scene_obs})
     np.testing.assert_allclose(obs["environment_state"][:2], scene_obs[:2], atol=1e-3)

@@ -36,6 +36,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from lerobot.envs.utils import NEW_ROLLOUT_OPTION
 
 from lerobot_subgoalvla.calvin_vocab import CALVIN_FPS, EVAL_INSTRUCTIONS, TASK_NAMES
 from lerobot_subgoalvla.envs.calvin import chains as calvin_chains
@@ -200,14 +201,24 @@ class CalvinEnv(gym.Env):
         Args:
             seed: Seeds ``self.np_random``, the only source of randomness (chain choice, random starts).
             options: Optional ``robot_obs`` (15,) and/or ``scene_obs`` (24,) overriding the start state,
-                ``chain_id`` (``lh_mtlc``: which chain of the range to run). Other keys, such as LeRobot's
-                ``lerobot_new_rollout``, are ignored.
+                ``chain_id`` (``lh_mtlc`` only: which chain of the range to run). LeRobot's
+                ``lerobot_new_rollout`` flag is accepted and ignored.
 
         Returns:
             ``(observation, info)``.
+
+        Raises:
+            ValueError: Unknown option keys, or a bad ``robot_obs`` / ``scene_obs`` / ``chain_id``.
         """
         super().reset(seed=seed)
         options = dict(options or {})
+        allowed = {"robot_obs", "scene_obs", NEW_ROLLOUT_OPTION} | (
+            {"chain_id"} if self.is_chain_mode else set()
+        )
+        if unknown := sorted(set(options) - allowed):
+            raise ValueError(
+                f"Unknown CalvinEnv reset option(s) {unknown}; valid: {', '.join(sorted(allowed))}"
+            )
         robot_obs = _checked_state(options.get("robot_obs"), ROBOT_OBS_DIM, "robot_obs")
         scene_obs = _checked_state(options.get("scene_obs"), SCENE_OBS_DIM, "scene_obs")
         if self._sim is None:
