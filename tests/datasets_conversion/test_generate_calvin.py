@@ -124,3 +124,10 @@ def test_quirk_table_matches_simulation_slot_order(scene: str, calvin_assets_dir
     )
     assert opts.scene_name == scene.replace("calvin_", "calvin_scene_")
     assert slots == block_order_of(opts.scene_name)
+
+
+@pytest.mark.slow
+def test_worker_count_does_not_change_the_data(generated: Path, tmp_path: Path) -> None:
+    generate(tmp_path / "two_workers", OPTIONS, workers=2)
+    for name in ("training", "validation"):
+        _assert_same(_split_contents(tmp_path / "two_workers" / name), _split_contents(generated / name))
