@@ -135,7 +135,10 @@ def _place_script(ctx: SkillContext, layout: SceneLayout, where: str) -> Skill:
     tcp, _ = ctx.tcp()
     base = min(others, key=lambda b: float(np.linalg.norm(ctx.block_pose(b)[0][:2] - tcp[:2])))
     base_pos, _ = ctx.block_pose(base)
-    return scripts.place_on(ctx, block, base_pos[:2] + ctx.jitter(0.004, 2), base_pos[2] + scripts.BLOCK_HALF)
+    # Fingers along y: the held block's long side lies along x, parallel to the cabinet front, so that a block
+    # stacked close to the cabinet does not touch the sliding door.
+    return scripts.place_on(ctx, block, base_pos[:2] + ctx.jitter(0.004, 2), base_pos[2] + scripts.BLOCK_HALF,
+                            closing_yaw=0.0)  # fmt: skip
 
 
 # --------------------------------------------------------------------------------- symbolic predicates

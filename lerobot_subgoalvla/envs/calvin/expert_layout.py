@@ -52,14 +52,7 @@ class SceneLayout:
         return SceneLayout(
             desk_x=(float(base[0, 0]), float(base[1, 0])),
             desk_front_y=float(base[0, 1]),
-            desk_top_z=float(
-                ray_hits(
-                    ctx,
-                    np.array([[base[0, 0] + 0.03, base[0, 1] + 0.03, 1.0]]),
-                    np.array([[base[0, 0] + 0.03, base[0, 1] + 0.03, 0.0]]),
-                    "base_link",
-                )[0, 2]
-            ),
+            desk_top_z=_desk_top(ctx, base),
             shelf_x=(float(plank[0, 0]), float(plank[1, 0])),
             shelf_y=float(0.5 * (plank[0, 1] + plank[1, 1])),
             cabinet_front_y=float(plank[0, 1]),
@@ -135,6 +128,9 @@ class SceneLayout:
         """Room to push ``block`` 0.17 m along ``direction`` x: stays on the desk, misses button and blocks."""
         pos, _ = ctx.block_pose(block)
         start_x, end_x = pos[0] - direction * 0.09, pos[0] + direction * 0.2
+        base, _ = ctx.sim.client.getBasePositionAndOrientation(ctx.robot_uid)
+        if np.hypot(start_x - base[0], pos[1] - base[1]) > 0.8:  # the finger must reach behind the block
+            return False
         lo, hi = min(start_x, end_x), max(start_x, end_x)
         if lo < self.desk_x[0] + 0.05 or hi > self.desk_x[1] - 0.05:
             return False
@@ -148,3 +144,14 @@ class SceneLayout:
             if abs(opos[1] - pos[1]) < 0.08 and lo - 0.05 < opos[0] < hi + 0.05:
                 return False
         return True
+
+
+def _desk_top(ctx: SkillContext, base: np.ndarray) -> float:
+    """Desk surface height: median of downward rays along a line 5 cm behind the desk's front edge."""
+    xs = np.linspace(base[0, 0] + 0.05, base[1, 0] - 0.05, 9)
+    y = base[0, 1] + 0.05
+    starts = np.stack([xs, np.full_like(xs, y), np.full_like(xs, 1.0)], axis=1)
+    tops = ray_hits(ctx, starts, starts * [1, 1, 0], "base_link")[:, 2]
+    if not np.isfinite(tops).any():
+        raise ValueError("could not find the desk surface of the table (no downward ray hit base_link)")
+    return float(np.nanmedian(tops))

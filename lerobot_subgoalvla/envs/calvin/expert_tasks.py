@@ -205,12 +205,19 @@ def push_into_drawer(ctx: SkillContext, block: str) -> Skill:
 
 
 def place_on(
-    ctx: SkillContext, block: str, target_xy: np.ndarray, surface_z: float, tilt: float = 0.0
+    ctx: SkillContext,
+    block: str,
+    target_xy: np.ndarray,
+    surface_z: float,
+    tilt: float = 0.0,
+    closing_yaw: float | None = None,
 ) -> Skill:
     """Carry the held block over ``target_xy``, lower it onto ``surface_z`` (its bottom), release, retreat.
 
     ``tilt`` > 0 leans the fingers toward +y and approaches along them (from the front and above), which is how
     the hand reaches into the cabinet's slanted opening (place_in_slider); the block turns with the fingers.
+    ``closing_yaw`` turns the wrist first so that the fingers close along that direction modulo pi (tilted
+    placing uses pi/2: fingers along x, block level sideways, hand parallel to the opening).
     """
     tcp, euler = ctx.tcp()
     block_pos, _ = ctx.block_pose(block)
@@ -219,13 +226,14 @@ def place_on(
     half_height = BLOCK_HALF * (abs(np.cos(tilt)) + abs(np.sin(tilt)))
     offset = (tcp[2] - block_pos[2]) * np.cos(tilt)  # TCP height above the block centre
     drop = np.array([*target_xy, surface_z + half_height + offset + ctx.rng.uniform(0.008, 0.015)])
-    if tilt:
-        # Turn the wrist first so that the fingers close along x: tilting about x then keeps the block level
-        # sideways and the hand (wide along the closing axis) parallel to the cabinet opening.
-        yaw = min((np.pi / 2 + k * np.pi for k in (-1, 0, 1)), key=lambda y: abs(wrap_angle(y - euler[2])))
+    if tilt and closing_yaw is None:
+        closing_yaw = np.pi / 2
+    if closing_yaw is not None:
+        yaw = min((closing_yaw + k * np.pi for k in (-1, 0, 1)), key=lambda y: abs(wrap_angle(y - euler[2])))
         yield from ctx.servo(tcp + [0, 0, 0.02], down_euler(yaw), tol=0.015, rot_tol=0.06, max_steps=90,
                              what="turn wrist")  # fmt: skip
-        euler = tilted_euler(yaw, tilt)
+        euler = tilted_euler(yaw, tilt) if tilt else down_euler(yaw)
+    if tilt:
         yield from ctx.transit(
             drop - 0.1 * approach, euler, tol=0.015, rot_tol=0.08, max_steps=100, what="front"
         )

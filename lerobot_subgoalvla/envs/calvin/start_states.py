@@ -45,6 +45,8 @@ def sample_start_state(
         RuntimeError: no feasible state after ``max_tries`` attempts (a composite prefix kept failing).
     """
     check_task_name(task)
+    # Ray casts (layout probing) use the broad phase, which a freshly loaded world has not computed yet.
+    sim.client.performCollisionDetection()
     for _ in range(max_tries):
         try:
             scene_obs = _draw_scene(task, sim, np_random)
