@@ -5,6 +5,7 @@ The CLI tests run LeRobot's own console scripts as subprocesses on the tiny data
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -152,6 +153,25 @@ def test_stage_two_run_starts_from_a_stage_one_checkpoint(
         tmp_path / "stage2" / "checkpoints" / "000002" / "pretrained_model" / "model.safetensors"
     )
     assert int(weights["optimizer_steps"]) == SWITCH_STEP + 2  # the counter carries over from the checkpoint
+
+
+@pytest.mark.slow
+def test_lerobot_eval_runs_a_checkpoint_on_the_calvin_env(
+    trained_run: tuple[Path, str], tmp_path: Path
+) -> None:
+    """The saved checkpoint + pipelines drive ``lerobot-eval --env.type=calvin`` (one short LH-MTLC chain)."""
+    output_dir, _ = trained_run
+    checkpoint = output_dir / "checkpoints" / "last" / "pretrained_model"
+    flags = ["--env.type=calvin", "--env.task=lh_mtlc", "--env.chain_stop=1", "--env.episode_length=10"]
+    flags += [
+        "--eval.n_episodes=1",
+        "--eval.batch_size=1",
+        "--policy.device=cpu",
+        f"--output_dir={tmp_path / 'eval'}",
+    ]
+    _run([str(BIN / "lerobot-eval"), f"--policy.path={checkpoint}", *flags])
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1
 
 
 @pytest.mark.slow
