@@ -67,7 +67,7 @@ def main() -> None:
     parser.add_argument("--max-steps", type=int, default=360)
     parser.add_argument("--workers", type=int, default=1)
     args = parser.parse_args()
-    logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stdout)
+    logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stdout, force=True)
     if args.scene.startswith("calvin_") and (args.assets_dir is None or not Path(args.assets_dir).is_dir()):
         logger.error(
             "--assets-dir (or $CALVIN_ENV_ASSETS) must point to a calvin_env clone for %s", args.scene
