@@ -230,6 +230,15 @@ def test_loading_a_hub_id_offline_fails_with_one_clear_line() -> None:
     assert "HF_HUB_OFFLINE=1" in message and "local checkpoint directory" in message and "\n" not in message
 
 
+def test_training_that_would_push_fails_before_training_when_offline(make_config, tiny_dataset) -> None:
+    with pytest.raises(
+        OSError, match=r"push_to_hub=true .*HF_HUB_OFFLINE=1 is set; train with --policy.push_to_hub=false"
+    ):
+        make_policy(
+            make_config(push_to_hub=True, repo_id="someone/subgoalvla_calvin"), ds_meta=tiny_dataset.meta
+        )
+
+
 def test_push_to_hub_offline_fails_and_online_uploads_a_model_card(
     make_config, make_policy_and_processors, monkeypatch: pytest.MonkeyPatch
 ) -> None:

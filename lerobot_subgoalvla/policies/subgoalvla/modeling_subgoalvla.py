@@ -58,7 +58,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
     Args:
         config: the policy config; ``validate_features`` is checked here (LeRobot does not call it).
         dataset_meta: the training dataset's metadata when LeRobot builds the policy from a dataset; its
-            features are checked against the data contract (trace and history are needed for training only).
+            features are checked against the data contract (trace and history are needed for training only),
+            and a run that would end by pushing to the Hub fails now when the Hub is offline.
         **kwargs: the rest of LeRobot's factory arguments (``dataset_stats``): normalisation is the processor's
             job, so the policy does not use them.
     """
@@ -71,6 +72,11 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         config.validate_features()
         if dataset_meta is not None:
             config.validate_dataset_features(dataset_meta.features)
+            if config.push_to_hub and config.repo_id:  # fail before training, not after it
+                _require_online(
+                    f"--policy.push_to_hub=true (to {config.repo_id!r})",
+                    "train with --policy.push_to_hub=false and push the checkpoint later",
+                )
         self.config: SubgoalVLAConfig = config
         self.model = SubgoalVLAModel(config)
         # Optimizer steps done so far; saved with the weights so resume/reload keeps the training stage.
