@@ -3,8 +3,9 @@
 - In process, with a scripted oracle: ``avg_sum_reward`` is the mean number of completed subtasks and
   ``pc_success`` the 5/5 rate, chain by chain (plugin guide 3.3-3.4).
 - End to end, ``lerobot-eval --env.type=calvin`` in a subprocess with a saved LeRobot policy (ACT, random tiny
-  weights; the env contract does not depend on the policy): one task_id per chain, ``eval_info.json``'s
-  ``avg_sum_reward`` equals the mean ``num_completed`` of the env's JSON-lines results, videos are written.
+  weights; the env contract does not depend on the policy; and, marked slow, a tiny SubgoalVLA checkpoint):
+  one task_id per chain, ``eval_info.json``'s ``avg_sum_reward`` equals the mean ``num_completed`` of the env's
+  JSON-lines results, videos are written.
 """
 
 from __future__ import annotations
@@ -132,18 +133,18 @@ def _save_tiny_act(cfg: CalvinEnvConfig, path: Path) -> None:
     postprocessor.save_pretrained(path)
 
 
-def test_lerobot_eval_cli_end_to_end(tmp_path: Path) -> None:
-    cfg = CalvinEnvConfig(chain_start=5, chain_stop=7, episode_length=3, **TINY)
-    _save_tiny_act(cfg, tmp_path / "policy")
+def _run_lerobot_eval_and_check(policy_dir: Path, tmp_path: Path, chains: tuple[int, int]) -> None:
+    """Run ``lerobot-eval`` on chains ``[start, stop)`` and check eval_info.json against the env's records."""
+    start, stop = chains
     results = tmp_path / "results.jsonl"
     command = [
         str(Path(sys.executable).with_name("lerobot-eval")),
-        f"--policy.path={tmp_path / 'policy'}",
+        f"--policy.path={policy_dir}",
         "--policy.device=cpu",
         "--env.type=calvin",
         "--env.task=lh_mtlc",
-        "--env.chain_start=5",
-        "--env.chain_stop=7",
+        f"--env.chain_start={start}",
+        f"--env.chain_stop={stop}",
         "--env.episode_length=3",
         "--env.static_image_size=32",
         "--env.gripper_image_size=32",
@@ -156,13 +157,43 @@ def test_lerobot_eval_cli_end_to_end(tmp_path: Path) -> None:
     run = subprocess.run(command, capture_output=True, text=True, env=env, timeout=900, check=False)
     assert run.returncode == 0, run.stderr[-3000:]
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
-    assert sorted(entry["task_id"] for entry in info["per_task"]) == [5, 6]
+    chain_ids = list(range(start, stop))
+    assert sorted(entry["task_id"] for entry in info["per_task"]) == chain_ids
     records = {r.chain_id: r for r in read_episode_results(results)}
-    assert sorted(records) == [5, 6]
-    assert records[5].tasks == official_chains()[5].tasks
-    completed = [records[cid].num_completed for cid in (5, 6)]
+    assert sorted(records) == chain_ids
+    assert all(records[cid].tasks == official_chains()[cid].tasks for cid in chain_ids)
+    completed = [records[cid].num_completed for cid in chain_ids]
     assert info["per_group"]["calvin"]["avg_sum_reward"] == pytest.approx(np.mean(completed))
-    assert info["per_group"]["calvin"]["n_episodes"] == 2
+    assert info["per_group"]["calvin"]["n_episodes"] == len(chain_ids)
     for entry in info["per_task"]:
         assert entry["metrics"]["sum_rewards"] == [records[entry["task_id"]].num_completed]
         assert Path(entry["metrics"]["video_paths"][0]).is_file()
+
+
+def test_lerobot_eval_cli_end_to_end(tmp_path: Path) -> None:
+    cfg = CalvinEnvConfig(chain_start=5, chain_stop=7, episode_length=3, **TINY)
+    _save_tiny_act(cfg, tmp_path / "policy")
+    _run_lerobot_eval_and_check(tmp_path / "policy", tmp_path, chains=(5, 7))
+
+
+@pytest.mark.slow
+def test_lerobot_eval_with_a_tiny_subgoalvla_checkpoint(tmp_path: Path) -> None:
+    from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
+    from lerobot_subgoalvla.policies.subgoalvla.modeling_subgoalvla import SubgoalVLAPolicy
+    from lerobot_subgoalvla.policies.subgoalvla.processor_subgoalvla import (
+        make_subgoalvla_pre_post_processors,
+    )
+
+    features = env_to_policy_features(CalvinEnvConfig(**TINY))
+    config = SubgoalVLAConfig(
+        device="cpu",
+        preset="tiny",
+        push_to_hub=False,
+        input_features={k: v for k, v in features.items() if v.type is not FeatureType.ACTION},
+        output_features={"action": features["action"]},
+    )
+    policy_dir = tmp_path / "policy"
+    SubgoalVLAPolicy(config).save_pretrained(policy_dir)
+    for pipeline in make_subgoalvla_pre_post_processors(config, dataset_stats=None):
+        pipeline.save_pretrained(policy_dir)
+    _run_lerobot_eval_and_check(policy_dir, tmp_path, chains=(0, 2))
