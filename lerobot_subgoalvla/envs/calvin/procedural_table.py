@@ -144,6 +144,7 @@ def _base_shapes() -> tuple[Shape, ...]:
 def table_links() -> tuple[LinkSpec, ...]:
     """The seven movable/fixed table links in CALVIN's link-index order (spec 2.1, 3.2)."""
     door_u_mid = 0.01  # door panel spans u in [-0.108, 0.128] around the slide origin
+    handle_u = 0.04  # CALVIN's door handle spans z 0.50-0.64 along the slope
     return (
         LinkSpec(
             "button_link",
@@ -180,11 +181,9 @@ def table_links() -> tuple[LinkSpec, ...]:
                 _box(
                     (0.29, 0.236, 0.012), _on_face(0.14, door_u_mid, 0.026), _FACE, WOOD_FRONT
                 ),  # door panel
-                _box(
-                    (0.02, 0.12, 0.012), _on_face(0.14, door_u_mid, 0.071), _FACE, HANDLE_GRAY
-                ),  # handle bar
-                _box((0.02, 0.012, 0.04), _on_face(0.14, door_u_mid - 0.05, 0.05), _FACE, HANDLE_GRAY),
-                _box((0.02, 0.012, 0.04), _on_face(0.14, door_u_mid + 0.05, 0.05), _FACE, HANDLE_GRAY),
+                _box((0.02, 0.14, 0.012), _on_face(0.14, handle_u, 0.071), _FACE, HANDLE_GRAY),  # handle bar
+                _box((0.02, 0.012, 0.04), _on_face(0.14, handle_u - 0.055, 0.05), _FACE, HANDLE_GRAY),
+                _box((0.02, 0.012, 0.04), _on_face(0.14, handle_u + 0.055, 0.05), _FACE, HANDLE_GRAY),
             ),
         ),
         LinkSpec(
@@ -247,7 +246,7 @@ def table_links() -> tuple[LinkSpec, ...]:
 #: ``(link name, offset)``; the scene converts them to link-local points and tracks them with the joints.
 PROCEDURAL_POINTS: dict[str, tuple[str, tuple[float, float, float]]] = {
     "drawer_handle": ("drawer_link", (0.0, -0.25, 0.035)),
-    "slide_handle": ("slide_link", _on_face(0.14, 0.01, 0.071)),
+    "slide_handle": ("slide_link", _on_face(0.14, 0.04, 0.071)),
     "button_top": ("button_link", (0.0, 0.0, 0.027)),
     "switch_lever": ("switch_link", _on_face(0.0, 0.0, 0.045)),
     "led": ("led_link", (0.0, 0.0, 0.019)),
