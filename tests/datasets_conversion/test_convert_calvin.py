@@ -197,3 +197,15 @@ def test_kill_and_resume_gives_identical_dataset(tmp_path: Path) -> None:
         np.testing.assert_array_equal(got[key], want[key], err_msg=key)
     again = convert(src, "local/k", root, options=options, episodes_per_part=1, resume=True)["training"]
     assert again.num_frames == resumed.num_frames  # --resume on a complete ROOT returns it unchanged
+
+
+@pytest.mark.slow
+def test_parallel_workers_give_the_same_dataset(source: Path, tmp_path: Path) -> None:
+    options = ConversionOptions(image_format="image", mode="all")
+    serial = convert(source, "local/s", tmp_path / "serial", options=options, episodes_per_part=1)["training"]
+    parallel = convert(
+        source, "local/p", tmp_path / "parallel", options=options, episodes_per_part=1, workers=2
+    )
+    got, want = _dataset_arrays(parallel["training"]), _dataset_arrays(serial)
+    for key in want:
+        np.testing.assert_array_equal(got[key], want[key], err_msg=key)
