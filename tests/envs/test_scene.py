@@ -61,7 +61,7 @@ def test_procedural_table_matches_calvin_links_and_joints(sim):
     }
     sim.reset(scene_obs=_scene_obs())
     for index, pos in frames.items():
-        np.testing.assert_allclose(c.getLinkState(table, index)[4], pos, atol=1e-6)
+        np.testing.assert_allclose(c.getLinkState(table, index)[4], pos, atol=5e-4)
 
 
 def test_button_rising_edge_toggles_led(sim):
@@ -195,6 +195,23 @@ def test_calvin_d_loads_with_calvin_indices_and_robot(calvin_assets_dir: Path):
         sim.step(HOLD_OPEN)
         assert sim.scene_obs()[4] == 1 and sim.scene_obs()[8] == pytest.approx(0.46, abs=3e-3)
         assert sim.render_cameras()["static"].shape == (32, 32, 3)
+
+
+@pytest.mark.calvin_assets
+def test_procedural_table_frames_and_handles_match_calvin_d(sim, calvin_assets_dir: Path):
+    """Same link frames (position and orientation) and handle points within 2 cm as CALVIN's scene D table."""
+    sim.reset(scene_obs=_scene_obs())
+    with CalvinSimulation("calvin_D", assets_dir=calvin_assets_dir, cameras=False) as calvin:
+        calvin.reset(scene_obs=_scene_obs())
+        for link in range(7):
+            ours = sim.client.getLinkState(sim.scene.table_uid, link)[4:6]
+            theirs = calvin.client.getLinkState(calvin.scene.table_uid, link)[4:6]
+            np.testing.assert_allclose(ours[0], theirs[0], atol=1e-5)
+            assert abs(np.dot(ours[1], theirs[1])) == pytest.approx(1.0, abs=1e-6)
+        for name in ("drawer_handle", "slide_handle", "button_top", "switch_lever", "led", "lightbulb"):
+            np.testing.assert_allclose(
+                sim.scene.handle_position(name), calvin.scene.handle_position(name), atol=0.02
+            )
 
 
 @pytest.mark.calvin_assets

@@ -73,6 +73,7 @@ class Scene:
         self.plane_uid = -1
         self.links: dict[str, int] = {}
         self.joints: dict[str, int] = {}
+        self._limits: dict[str, tuple[float, float]] = {}
         self.light_states = {"lightbulb": 0, "led": 0}
         self.button_state = 0
         self.switch_state = 0
