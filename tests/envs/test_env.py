@@ -273,3 +273,17 @@ def test_step_before_reset_raises() -> None:
         env.step(np.zeros(7))
     with pytest.raises(RuntimeError, match="before reset"):
         env.render()
+
+
+@pytest.mark.calvin_assets
+def test_chain_on_calvins_scene_d(calvin_assets_dir: Path) -> None:
+    chain = official_chains()[0]
+    env = CalvinEnv(
+        "lh_mtlc", scene="calvin_D", assets_dir=calvin_assets_dir, chain_start=0, chain_stop=1, **SMALL
+    )
+    obs, info = env.reset(seed=0)
+    np.testing.assert_allclose(obs["environment_state"], chain.scene_obs, atol=5e-3)  # blocks settle
+    assert env.task_description == EVAL_INSTRUCTIONS[chain.tasks[0]]
+    _, reward, terminated, truncated, info = env.step(np.zeros(7))
+    assert (reward, terminated, truncated, info["num_completed"]) == (0.0, False, False, 0)
+    env.close()
