@@ -115,6 +115,14 @@ def test_gripper_closes_within_a_few_steps_and_is_binarised(sim):
     assert sim.robot_obs()[14] == 1
 
 
+def test_caller_action_is_not_modified(sim):
+    """calvin_env 1431a46 scaled the caller's array in place; we copy (797142c behaviour)."""
+    sim.reset(np_random=np.random.default_rng(0))
+    action = np.array([0.5, 2.0, -0.3, 0.1, 0.0, 0.0, 0.7])
+    sim.step(action)
+    np.testing.assert_array_equal(action, [0.5, 2.0, -0.3, 0.1, 0.0, 0.0, 0.7])
+
+
 def test_absolute_action_mode_reaches_pose():
     with CalvinSimulation("procedural", cameras=False, action_mode="absolute") as sim:
         sim.reset(robot_obs=EVAL_ROBOT_OBS, scene_obs=eval_scene_obs())
