@@ -60,8 +60,11 @@ def _assert_same_obs(a: dict[str, Any], b: dict[str, Any]) -> None:
     np.testing.assert_array_equal(a["environment_state"], b["environment_state"])
 
 
-def test_gymnasium_check_env() -> None:
-    env = CalvinEnv("lh_mtlc", chain_start=0, chain_stop=4, episode_length=8, **SMALL)
+@pytest.mark.parametrize("action_mode", ["relative", "absolute"])
+def test_gymnasium_check_env(action_mode: str) -> None:
+    env = CalvinEnv(
+        "lh_mtlc", chain_start=0, chain_stop=4, episode_length=8, action_mode=action_mode, **SMALL
+    )
     check_env(env, skip_render_check=False)
     env.close()
 
