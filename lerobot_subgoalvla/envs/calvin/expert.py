@@ -208,7 +208,11 @@ def is_feasible(task: str, sim: CalvinSimulation) -> bool:
         on_table = _on_table(ctx, block) and layout.within_reach(ctx, block)
         if parts[0] == "push":
             return on_table and layout.push_room(ctx, block, 1.0 if parts[-1] == "right" else -1.0)
-        return on_table
+        try:
+            yaw = scripts.grasp_yaw(ctx.block_pose(block)[1])
+        except ExpertFailureError:
+            return False
+        return on_table and layout.grasp_clear_of_cabinet(ctx, block, yaw)
     return _fixture_feasible(task, ctx, layout)
 
 

@@ -119,7 +119,14 @@ class SceneLayout:
         return self.drawer_x[0] + 0.07 <= x <= self.drawer_x[1] - 0.07
 
     # ---------------------------------------------------------------------------------------- desk
-    def within_reach(self, ctx: SkillContext, block: str, reach: float = 0.82) -> bool:
+    def grasp_clear_of_cabinet(self, ctx: SkillContext, block: str, yaw: float) -> bool:
+        """The hand's footprint (0.24 m along the closing axis (sin yaw, -cos yaw), 0.1 m across) over the block
+        stays in front of the cabinet front (switch knob, door handle), which it would hit when descending."""
+        pos, _ = ctx.block_pose(block)
+        reach_y = 0.12 * abs(np.cos(yaw)) + 0.05 * abs(np.sin(yaw))
+        return float(pos[1]) + reach_y < float(ctx.link_aabb("switch_link")[0, 1])
+
+    def within_reach(self, ctx: SkillContext, block: str, reach: float = 0.78) -> bool:
         """Block within ``reach`` (horizontal) of the robot base: the Panda's top-down grasps fail beyond."""
         base, _ = ctx.sim.client.getBasePositionAndOrientation(ctx.robot_uid)
         return float(np.linalg.norm(ctx.block_pose(block)[0][:2] - np.asarray(base[:2]))) <= reach

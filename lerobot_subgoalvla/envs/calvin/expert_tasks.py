@@ -26,8 +26,11 @@ from lerobot_subgoalvla.envs.calvin.expert_skills import (
 
 #: Yaw of the TCP in CALVIN's neutral pose (spec 4.2 robot_obs[5]); grasp yaws are chosen near it.
 HOME_YAW = 1.5
-#: Yaw range that keeps joint 7 away from its limits (+-2.9 rad) for the down-pointing TCP.
-YAW_RANGE = (-0.6, 3.6)
+#: Yaw range that keeps joint 7 away from its limits (+-2.9 rad) for the down-pointing TCP: measured
+#: q7 ~ 2.05 - yaw near the desk, so yaw in (-0.85, 4.95); a 0.15 rad margin on each side.
+YAW_RANGE = (-0.7, 4.8)
+#: Rotations happen at y <= this (m): far enough from the cabinet front for the hand to turn freely.
+SAFE_TURN_Y = -0.09
 #: Block half height (spec 3.4: 0.04 m cross-section after the 0.8 scaling).
 BLOCK_HALF = 0.02
 #: Unit vector of the switch lever's travel (spec 3.2: 0.088 m of joint = +0.044 y, +0.076 z).
@@ -97,8 +100,8 @@ def top_z(ctx: SkillContext, x: float, y: float, link: str | None = None) -> flo
 
 
 # ---------------------------------------------------------------------------------------------- blocks
-def grasp(ctx: SkillContext, block: str, turn: float = 0.0, tilt: float = 0.0) -> Skill:
-    """Approach ``block`` along the fingers with the gripper open, close; fails if nothing is held.
+def _grasp_once(ctx: SkillContext, block: str, turn: float, tilt: float) -> Skill:
+    """Approach ``block`` along the fingers with the gripper open and close them.
 
     ``tilt`` > 0 leans the fingers toward +y (into the cabinet): the approach then comes from the front and
     above, keeping the hand outside the cabinet's slanted opening (lift_*_slider).
@@ -120,8 +123,22 @@ def grasp(ctx: SkillContext, block: str, turn: float = 0.0, tilt: float = 0.0) -
     yield from ctx.servo(target, euler, speed=ctx.motion.slow_speed, tol=0.006, max_steps=40,
                          what=f"grasp {block}", allow_timeout=True)  # fmt: skip
     yield from ctx.set_gripper(GRIPPER_CLOSE)
-    if ctx.gripper_width() < 0.01 or not ctx.robot_holds(block):
-        raise ExpertFailureError(f"grasp of {block} missed (gripper width {ctx.gripper_width():.3f})")
+
+
+def grasp(ctx: SkillContext, block: str, turn: float = 0.0, tilt: float = 0.0, attempts: int = 2) -> Skill:
+    """Grasp ``block`` (see :func:`_grasp_once`); on a miss, open, back off and try again from its new pose."""
+    for attempt in range(attempts):
+        yield from _grasp_once(ctx, block, turn, tilt)
+        if ctx.gripper_width() > 0.01 and ctx.robot_holds(block):
+            return
+        if attempt + 1 < attempts:
+            yield from ctx.set_gripper(GRIPPER_OPEN)
+            tcp, euler = ctx.tcp()
+            back = np.array([0.0, -np.sin(tilt), np.cos(tilt)]) * 0.06
+            yield from ctx.servo(tcp + back, euler, tol=0.02, what="back off", allow_timeout=True)
+    raise ExpertFailureError(
+        f"grasp of {block} missed {attempts} times (gripper width {ctx.gripper_width():.3f})"
+    )
 
 
 def lift(ctx: SkillContext, block: str, height: float = 0.1) -> Skill:
@@ -148,14 +165,20 @@ def lift_out(ctx: SkillContext, block: str, exit_y: float) -> Skill:
 
 
 def rotate(ctx: SkillContext, block: str, direction: float) -> Skill:
-    """Grasp, lift 2-3 cm, turn the yaw by ~90 deg (+ = left / counter-clockwise), set down, release."""
+    """Grasp, lift 2-3 cm, turn the yaw by ~90 deg (+ = left / counter-clockwise), set down, release.
+
+    A block close to the cabinet is first carried to ``SAFE_TURN_Y`` (at most ~6 cm: the oracle allows 0.1 m).
+    """
     turn = direction * ctx.rng.uniform(np.deg2rad(80), np.deg2rad(100))
     yield from grasp(ctx, block, turn=turn)
     tcp, euler = ctx.tcp()
-    yield from ctx.servo(tcp + [0, 0, ctx.rng.uniform(0.02, 0.03)], euler, tol=0.01, what="raise")
+    # Turn away from the cabinet front (switch, door): the hand is 0.22 m wide along its closing axis.
+    raised = tcp + [0, 0, ctx.rng.uniform(0.025, 0.035)]
+    raised[1] = min(raised[1], SAFE_TURN_Y + ctx.rng.uniform(-0.01, 0.01))
+    yield from ctx.servo(raised, euler, tol=0.01, what="raise")
     tcp, euler = ctx.tcp()
     turned = euler + np.array([0, 0, turn])
-    yield from ctx.servo(tcp, turned, rot_tol=0.04, max_steps=90, what="turn")
+    yield from ctx.servo(tcp, turned, rot_tol=0.04, max_steps=90, what="turn", allow_timeout=True)
     yield from ctx.servo(tcp - [0, 0, 0.02], turned, speed=ctx.motion.slow_speed, tol=0.006, max_steps=30,
                          what="set down", allow_timeout=True)  # fmt: skip
     yield from release_and_retreat(ctx)
@@ -165,7 +188,7 @@ def release_and_retreat(ctx: SkillContext, up: float = 0.08) -> Skill:
     """Open the gripper and move straight up (place/stack: the block must end free of the robot)."""
     yield from ctx.set_gripper(GRIPPER_OPEN)
     tcp, euler = ctx.tcp()
-    yield from ctx.servo(tcp + [0, 0, up], euler, tol=0.015, what="retreat")
+    yield from ctx.servo(tcp + [0, 0, up], euler, tol=0.015, what="retreat", allow_timeout=True)
 
 
 def push(ctx: SkillContext, block: str, direction: float) -> Skill:
@@ -173,18 +196,20 @@ def push(ctx: SkillContext, block: str, direction: float) -> Skill:
     pos, rot = ctx.block_pose(block)
     half = 0.5 * (np.abs(rot[0, 0]) * _block_length(ctx, block) + np.abs(rot[0, 1]) * 0.04)
     ctx.gripper = GRIPPER_CLOSE
-    yaw = HOME_YAW + ctx.rng.uniform(-0.1, 0.1)  # fingers close along x: thin profile along y
-    euler = down_euler(yaw + np.pi / 2)
+    # Fingers close along x: the hand is thin along y and stays clear of the cabinet front (switch).
+    euler = down_euler(HOME_YAW + ctx.rng.uniform(-0.1, 0.1))
     y = pos[1] + ctx.rng.uniform(-0.006, 0.006)
-    start = np.array([pos[0] - direction * (half + 0.035), y, pos[2] + 0.005])
+    start = np.array([pos[0] - direction * (half + 0.035), y, pos[2] + 0.012])  # fingertips clear the desk
     yield from ctx.servo(start + [0, 0, 0.08], euler, tol=0.015, what="above push start")
     yield from ctx.servo(start, euler, speed=ctx.motion.slow_speed, tol=0.008, what="push start")
-    distance = ctx.rng.uniform(0.14, 0.16)
+    distance = ctx.rng.uniform(0.17, 0.19)
     end = start + np.array([direction * distance, 0, 0])
     yield from ctx.servo(end, euler, speed=ctx.motion.slow_speed, tol=0.01, max_steps=60, what="push",
                          allow_timeout=True)  # fmt: skip
     tcp, _ = ctx.tcp()
-    yield from ctx.servo(tcp + np.array([-direction * 0.02, 0, 0.08]), euler, tol=0.02, what="retreat")
+    yield from ctx.servo(
+        tcp + np.array([-direction * 0.02, 0, 0.08]), euler, tol=0.02, what="retreat", allow_timeout=True
+    )
 
 
 def push_into_drawer(ctx: SkillContext, block: str) -> Skill:
@@ -201,7 +226,7 @@ def push_into_drawer(ctx: SkillContext, block: str) -> Skill:
     yield from ctx.servo(end, euler, speed=ctx.motion.slow_speed, tol=0.01, max_steps=60, what="push",
                          allow_timeout=True)  # fmt: skip
     tcp, _ = ctx.tcp()
-    yield from ctx.servo(tcp + [0, 0.03, 0.1], euler, tol=0.02, what="retreat")
+    yield from ctx.servo(tcp + [0, 0.03, 0.1], euler, tol=0.02, what="retreat", allow_timeout=True)
 
 
 def place_on(
@@ -246,7 +271,7 @@ def place_on(
     yield from ctx.set_gripper(GRIPPER_OPEN)
     tcp, euler = ctx.tcp()
     retreat = tcp - 0.08 * approach if tilt else tcp + [0, 0, 0.06]
-    yield from ctx.servo(retreat, euler, tol=0.015, what="retreat")
+    yield from ctx.servo(retreat, euler, tol=0.015, what="retreat", allow_timeout=True)
 
 
 def _block_length(ctx: SkillContext, block: str) -> float:
@@ -281,7 +306,7 @@ def drawer(ctx: SkillContext, opening: bool) -> Skill:
     tcp, _ = ctx.tcp()
     back = -0.03 if opening else -0.04
     yield from ctx.servo(tcp + [0, back, 0.0], euler, tol=0.015, what="release handle", allow_timeout=True)
-    yield from ctx.servo(ctx.tcp()[0] + [0, 0, 0.1], euler, tol=0.02, what="retreat")
+    yield from ctx.servo(ctx.tcp()[0] + [0, 0, 0.1], euler, tol=0.02, what="retreat", allow_timeout=True)
 
 
 def slider(ctx: SkillContext, direction: float) -> Skill:
@@ -307,7 +332,9 @@ def slider(ctx: SkillContext, direction: float) -> Skill:
     yield from ctx.servo(contact + [direction * travel, 0, 0], euler, speed=ctx.motion.slow_speed,
                          tol=0.01, max_steps=70, what="slide", allow_timeout=True)  # fmt: skip
     tcp, _ = ctx.tcp()
-    yield from ctx.servo(tcp + normal * 0.07 + [-direction * 0.01, 0, 0], euler, tol=0.015, what="retreat")
+    yield from ctx.servo(
+        tcp + normal * 0.07 + [-direction * 0.01, 0, 0], euler, tol=0.015, what="retreat", allow_timeout=True
+    )
 
 
 def press_button(ctx: SkillContext) -> Skill:
@@ -322,7 +349,11 @@ def press_button(ctx: SkillContext) -> Skill:
                          tol=0.006, max_steps=30, what="press", allow_timeout=True)  # fmt: skip
     yield from ctx.hold(GRIPPER_CLOSE, 2)
     yield from ctx.servo(
-        np.array([centre[0], centre[1], top + 0.07]), euler, tol=0.015, what="release button"
+        np.array([centre[0], centre[1], top + 0.07]),
+        euler,
+        tol=0.015,
+        what="release button",
+        allow_timeout=True,
     )
 
 
@@ -376,4 +407,4 @@ def move_switch(ctx: SkillContext, up: bool) -> Skill:
     yield from ctx.servo(contact + travel * direction, euler, speed=ctx.motion.slow_speed, tol=0.008,
                          max_steps=50, what="switch", allow_timeout=True)  # fmt: skip
     tcp, _ = ctx.tcp()
-    yield from ctx.servo(tcp + 0.07 * SWITCH_NORMAL, euler, tol=0.015, what="retreat")
+    yield from ctx.servo(tcp + 0.07 * SWITCH_NORMAL, euler, tol=0.015, what="retreat", allow_timeout=True)
