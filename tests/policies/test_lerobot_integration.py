@@ -131,6 +131,7 @@ def test_lerobot_train_resume_continues_from_the_last_checkpoint(trained_run: tu
     assert reloaded.stage == "stage2"
 
 
+@pytest.mark.slow
 def test_stage_two_run_starts_from_a_stage_one_checkpoint(
     trained_run: tuple[Path, str], tiny_dataset_root, tmp_path
 ):
