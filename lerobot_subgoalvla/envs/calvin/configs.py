@@ -146,7 +146,7 @@ class CalvinEnvConfig(EnvConfig):
 
     @property
     def gym_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of ``CalvinEnv`` shared by every task_id (the chain range is set per task_id)."""
+        """Keyword arguments of ``CalvinEnv``; ``create_envs`` adds the chain range and its chains (``lh_mtlc``)."""
         return {
             "task": self.task,
             "scene": self.scene,
