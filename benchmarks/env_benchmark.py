@@ -3,7 +3,7 @@
 Measures, side by side in one run and on ONE core (``--core``, via ``os.sched_setaffinity``):
 
 * ``physics``: ``CalvinSimulation.step`` (IK + 8 x stepSimulation at 240 Hz + button/switch logic);
-* ``render``: ``render_cameras()`` (static 200 x 200 + gripper 84 x 84, TinyRenderer on the CPU);
+* ``static`` / ``gripper``: the two images of ``render_cameras()`` (200 x 200 and 84 x 84, TinyRenderer, CPU);
 * ``total`` = physics + render per 30 Hz control step, as an evaluation rollout needs it.
 
 Times are CPU time of the calling thread (``time.thread_time``; pybullet DIRECT runs in-process), i.e. what a step
@@ -51,7 +51,7 @@ def measure(scene: str, assets_dir: Path | None, steps: int) -> dict[str, float]
     rng = np.random.default_rng(0)
     with CalvinSimulation(scene, assets_dir=assets_dir) as sim:
         sim.reset(robot_obs=EVAL_ROBOT_OBS, scene_obs=_scene_obs())
-        physics, render = [], []
+        physics, static, gripper = [], [], []
         action = np.zeros(7)
         for t in range(steps):
             action[:6] = np.clip(0.8 * action[:6] + 0.3 * rng.standard_normal(6), -1, 1)
@@ -59,14 +59,20 @@ def measure(scene: str, assets_dir: Path | None, steps: int) -> dict[str, float]
             t0 = time.thread_time()
             sim.step(action)
             t1 = time.thread_time()
-            sim.render_cameras()
+            sim.cameras.render_static()
             t2 = time.thread_time()
+            sim.cameras.render_gripper(*sim.robot.camera_pose())  # what render_cameras() does, timed apart
+            t3 = time.thread_time()
             physics.append(t1 - t0)
-            render.append(t2 - t1)
-    phys_ms, render_ms = 1000 * statistics.median(physics), 1000 * statistics.median(render)
+            static.append(t2 - t1)
+            gripper.append(t3 - t2)
+    phys_ms, static_ms, gripper_ms = (1000 * statistics.median(x) for x in (physics, static, gripper))
+    render_ms = static_ms + gripper_ms
     total_ms = phys_ms + render_ms
     return {
         "physics_ms": phys_ms,
+        "static_ms": static_ms,
+        "gripper_ms": gripper_ms,
         "render_ms": render_ms,
         "total_ms": total_ms,
         "steps_per_s": 1000 / total_ms,
@@ -115,7 +121,10 @@ def main() -> None:
         f"pybullet numpy support: {bool(pybullet.isNumpyEnabled())}; pinned core: {args.core}; steps: {args.steps}"
     )
     print(f"load average: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (timings scale with contention)")
-    header = f"{'scene':<11} {'physics ms':>10} {'render ms':>10} {'total ms':>9} {'steps/s':>8} {'phys-only/s':>11} {'render %':>8}"
+    header = (
+        f"{'scene':<11} {'physics ms':>10} {'static ms':>9} {'gripper ms':>10} {'total ms':>9} {'steps/s':>8} "
+        f"{'phys-only/s':>11} {'render %':>8}"
+    )
     print(header)
     print("-" * len(header))
     results = {}
@@ -123,7 +132,7 @@ def main() -> None:
         r = measure(scene, Path(assets) if assets else None, args.steps)
         results[scene] = r
         print(
-            f"{scene:<11} {r['physics_ms']:>10.2f} {r['render_ms']:>10.2f} {r['total_ms']:>9.2f} "
+            f"{scene:<11} {r['physics_ms']:>10.2f} {r['static_ms']:>9.2f} {r['gripper_ms']:>10.2f} {r['total_ms']:>9.2f} "
             f"{r['steps_per_s']:>8.1f} {r['physics_only_steps_per_s']:>11.1f} {100 * r['render_share']:>7.0f}%"
         )
     print()
