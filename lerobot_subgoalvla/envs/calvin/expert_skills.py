@@ -18,7 +18,7 @@ Legend: positions (3,) in world metres; eulers (3,) extrinsic xyz in radians (sp
 
 from __future__ import annotations
 
-from collections.abc import Generator, Iterator
+from collections.abc import Generator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -245,8 +245,3 @@ def ray_hits(ctx: SkillContext, starts: np.ndarray, ends: np.ndarray, link: str 
         if res[0] == ctx.table_uid and (link is None or res[1] == ctx.links[link]):
             hits[i] = res[3]
     return hits
-
-
-def run_skill(skill: Iterator[Action]) -> Any:
-    """Drain a skill without a sim (tests of pure helpers); returns the list of actions."""
-    return list(skill)

@@ -91,14 +91,6 @@ def handle_geometry(ctx: SkillContext, link: str, resolution: float = 0.01) -> d
     }
 
 
-def top_z(ctx: SkillContext, x: float, y: float, link: str | None = None) -> float:
-    """Height of the table surface (or of ``link``) under (x, y), from a downward ray."""
-    hit = ray_hits(ctx, np.array([[x, y, 1.2]]), np.array([[x, y, 0.0]]), link)[0]
-    if np.isnan(hit[2]):
-        raise ExpertFailureError(f"no {link or 'table'} surface under ({x:.3f}, {y:.3f})")
-    return float(hit[2])
-
-
 # ---------------------------------------------------------------------------------------------- blocks
 def _grasp_once(ctx: SkillContext, block: str, turn: float, tilt: float) -> Skill:
     """Approach ``block`` along the fingers with the gripper open and close them.
@@ -153,7 +145,7 @@ def lift(ctx: SkillContext, block: str, height: float = 0.1) -> Skill:
 
 
 def lift_out(ctx: SkillContext, block: str, exit_y: float) -> Skill:
-    """Grasp a block in the cabinet or drawer, raise it clear and pull it out toward the robot to ``exit_y``."""
+    """Grasp a block on the cabinet shelf (tilted fingers), raise it and pull it out toward the robot to ``exit_y``."""
     yield from grasp(ctx, block, tilt=ctx.rng.uniform(0.95, 1.05))
     tcp, euler = ctx.tcp()
     yield from ctx.servo(tcp + [0, 0, 0.045], euler, tol=0.01, what=f"raise {block}")
