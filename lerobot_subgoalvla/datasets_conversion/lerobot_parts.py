@@ -178,6 +178,9 @@ def write_part(job: PartJob) -> int:
             arrays = pending.result()
             if i + 1 < len(job.episodes):
                 pending = reader.submit(episode_arrays, split, job.episodes[i + 1], job.options)
+            # LeRobot registers an episode's tasks in set order (string-hash order, which differs between
+            # processes); registering them first in order of appearance makes task indices reproducible.
+            dataset.meta.save_episode_tasks(list(dict.fromkeys(episode.tasks)))
             for frame in iter_frames(arrays):
                 dataset.add_frame(frame)
             dataset.save_episode()
