@@ -569,10 +569,6 @@ class SubgoalVLAConfig(PreTrainedConfig):
             return "stage2"
         return self.stage
 
-    def preset_fields(self) -> list[str]:
-        """Dotted names of the fields the preset fills (for docs and tests)."""
-        return [f"{attr}.{name}" for attr, values in _PRESET_VALUES[self.preset].items() for name in values]
-
 
 __all__ = [
     "BackboneConfig",
