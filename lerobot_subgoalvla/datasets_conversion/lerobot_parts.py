@@ -168,7 +168,9 @@ def write_part(job: PartJob) -> int:
         video_backend="pyav",  # decoding backend; avoids probing torchcodec, which needs system FFmpeg
         use_videos=job.options.image_format == "video",
         streaming_encoding=job.options.image_format == "video",
-        image_writer_threads=4 if job.options.image_format == "image" else 0,  # PNG writing off the main thread
+        image_writer_threads=4
+        if job.options.image_format == "image"
+        else 0,  # PNG writing off the main thread
     )
     frames = 0
     # Read + decompress episode i+1 (zlib and numpy release the GIL) while LeRobot encodes episode i.
