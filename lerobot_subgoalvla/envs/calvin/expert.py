@@ -122,7 +122,8 @@ def _place_script(ctx: SkillContext, layout: SceneLayout, where: str) -> Skill:
         x = 0.5 * (lo + hi) + ctx.rng.uniform(-0.012, 0.012)
         y = layout.shelf_y + ctx.rng.uniform(-0.01, 0.01)
         surface = layout.shelf_top(ctx, x, y)
-        return scripts.place_on(ctx, block, np.array([x, y]), surface, tilt=ctx.rng.uniform(0.95, 1.05))
+        tilt = ctx.rng.uniform(0.95, 1.05) if x > -0.15 else ctx.rng.uniform(0.75, 0.85)  # see lift_out
+        return scripts.place_on(ctx, block, np.array([x, y]), surface, tilt=tilt)
     if where == "drawer":
         yaw = ctx.tcp()[1][2]  # the hand is ~0.22 m wide along the closing axis (sin yaw, -cos yaw)
         x, y, floor_z = layout.drawer_drop_point(

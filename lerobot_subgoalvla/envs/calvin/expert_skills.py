@@ -205,14 +205,16 @@ class SkillContext:
     ) -> Skill:
         """Free-space move that keeps clear of the cabinet front (door handle, switch): a move that crosses
         more than 8 cm of x with an end closer to the cabinet than ``front_y`` goes back, across, then in."""
-        tcp, _ = self.tcp()
+        tcp, tcp_euler = self.tcp()
         if abs(pos[0] - tcp[0]) > 0.08 and max(tcp[1], pos[1]) > front_y:
+            # Via points keep the current orientation (a tilted wrist close to the robot base is hard to reach)
+            # and are pass-through points: coming within 3 cm, or 40 steps, is enough.
             z = max(tcp[2], pos[2])
             if tcp[1] > front_y:
-                yield from self.servo(
-                    np.array([tcp[0], front_y, z]), euler, tol=0.03, rot_tol=0.3, what="back off"
-                )
-            yield from self.servo(np.array([pos[0], front_y, z]), euler, tol=0.03, rot_tol=0.3, what="across")
+                yield from self.servo(np.array([tcp[0], front_y, z]), tcp_euler, tol=0.03, rot_tol=0.3,
+                                      max_steps=40, what="back off", allow_timeout=True)  # fmt: skip
+            yield from self.servo(np.array([pos[0], front_y, z]), tcp_euler, tol=0.03, rot_tol=0.3,
+                                  max_steps=40, what="across", allow_timeout=True)  # fmt: skip
         yield from self.servo(pos, euler, **servo_kwargs)
 
     def hold(self, gripper: float, steps: int) -> Skill:

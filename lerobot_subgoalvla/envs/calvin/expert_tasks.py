@@ -146,9 +146,13 @@ def lift(ctx: SkillContext, block: str, height: float = 0.1) -> Skill:
 
 def lift_out(ctx: SkillContext, block: str, exit_y: float) -> Skill:
     """Grasp a block on the cabinet shelf (tilted fingers), raise it and pull it out toward the robot to ``exit_y``."""
-    yield from grasp(ctx, block, tilt=ctx.rng.uniform(0.95, 1.05))
+    # Left of the desk centre the shelf is close to the robot base, where a steep wrist tilt is hard to reach.
+    steep = ctx.block_pose(block)[0][0] > -0.15
+    yield from grasp(ctx, block, tilt=ctx.rng.uniform(0.95, 1.05) if steep else ctx.rng.uniform(0.75, 0.85))
     tcp, euler = ctx.tcp()
-    yield from ctx.servo(tcp + [0, 0, 0.045], euler, tol=0.01, what=f"raise {block}")
+    yield from ctx.servo(
+        tcp + [0, 0, 0.045], euler, speed=ctx.motion.slow_speed, tol=0.01, what=f"raise {block}"
+    )
     tcp, _ = ctx.tcp()
     yield from ctx.servo(np.array([tcp[0], min(tcp[1], exit_y), tcp[2] + 0.03]), euler, tol=0.015,
                          what=f"carry {block} out")  # fmt: skip
@@ -311,11 +315,15 @@ def slider(ctx: SkillContext, direction: float) -> Skill:
     ctx.gripper = GRIPPER_CLOSE
     face_angle = float(np.arctan(handle["face_slope"]))  # 0 for a vertical face, 30 deg for CALVIN's door
     normal = np.array([0.0, -np.cos(face_angle), np.sin(face_angle)])  # outward, toward the robot
-    euler = tilted_euler(ctx.rng.uniform(-0.08, 0.08), np.pi / 2 - face_angle + ctx.rng.uniform(-0.1, 0.05))
+    # Pushing right, the TCP works near the robot base, where a wrist tilted 60 deg is hard to reach: lean less.
+    lean = 0.0 if direction < 0 else 0.35
+    euler = tilted_euler(
+        ctx.rng.uniform(-0.08, 0.08), np.pi / 2 - face_angle - lean + ctx.rng.uniform(-0.1, 0.05)
+    )
     z = 0.5 * (handle["z_min"] + handle["z_max"]) + ctx.rng.uniform(-0.02, 0.0)
     face_y = handle["face_y"] + handle["face_slope"] * (z - 0.5 * (handle["z_min"] + handle["z_max"]))
     depth = (handle["face_y"] - handle["front_y"]) * np.cos(face_angle)  # handle protrusion along the normal
-    side_x = handle["x_max"] + 0.04 if direction < 0 else handle["x_min"] - 0.04
+    side_x = handle["x_max"] + 0.055 if direction < 0 else handle["x_min"] - 0.055  # hand clear of the handle
     contact = np.array([side_x, face_y, z]) + normal * depth * ctx.rng.uniform(0.45, 0.6)
     yield from ctx.servo(contact + normal * 0.07, euler, tol=0.012, rot_tol=0.08, max_steps=100,
                          what="before handle")  # fmt: skip
