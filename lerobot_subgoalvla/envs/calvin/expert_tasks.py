@@ -328,7 +328,7 @@ def slider(ctx: SkillContext, direction: float) -> Skill:
     yield from ctx.servo(contact + normal * 0.07, euler, tol=0.012, rot_tol=0.08, max_steps=100,
                          what="before handle")  # fmt: skip
     yield from ctx.servo(contact, euler, speed=ctx.motion.slow_speed, tol=0.008, what="handle side")
-    travel = ctx.rng.uniform(0.19, 0.22)
+    travel = ctx.rng.uniform(0.22, 0.25)  # includes the ~5 cm gap to the handle
     yield from ctx.servo(contact + [direction * travel, 0, 0], euler, speed=ctx.motion.slow_speed,
                          tol=0.01, max_steps=70, what="slide", allow_timeout=True)  # fmt: skip
     tcp, _ = ctx.tcp()

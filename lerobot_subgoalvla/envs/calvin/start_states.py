@@ -37,7 +37,7 @@ SETTLE_STEPS = 4
 
 
 def sample_start_state(
-    task: str, sim: CalvinSimulation, np_random: np.random.Generator, max_tries: int = 30
+    task: str, sim: CalvinSimulation, np_random: np.random.Generator, max_tries: int = 60
 ) -> tuple[np.ndarray, np.ndarray]:
     """Put ``sim`` into a random state where ``task`` is feasible; returns ``(robot_obs, scene_obs)``.
 
