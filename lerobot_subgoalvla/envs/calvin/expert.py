@@ -130,7 +130,7 @@ def _place_script(ctx: SkillContext, layout: SceneLayout, where: str) -> Skill:
             ctx, 0.11 * abs(np.cos(yaw)) + 0.05 * abs(np.sin(yaw)) + 0.01
         )
         return scripts.place_on(ctx, block, np.array([x, y]), floor_z)
-    others = [b for b in ctx.block_uids if b != block and _on_table(ctx, b)]
+    others = [b for b in ctx.block_uids if b != block and _stack_base(ctx, b)]
     if not others:
         raise ExpertFailureError("stack_block: no other block rests on the table")
     tcp, _ = ctx.tcp()
@@ -155,6 +155,16 @@ def held_block(ctx: SkillContext) -> str | None:
 def _on_table(ctx: SkillContext, block: str) -> bool:
     """Resting on the desk (table base link) only, i.e. CALVIN's symbolic ``X = table``."""
     return ctx.block_contacts(block) == {(ctx.table_uid, ctx.links["base_link"])}
+
+
+#: Stack bases must lie at y <= this (m): closer to the cabinet, the hand placing (and later grasping) the top
+#: block touches the sliding door or the switch.
+STACK_BASE_MAX_Y = -0.085
+
+
+def _stack_base(ctx: SkillContext, block: str) -> bool:
+    """A table block on which the expert stacks: on the desk and far enough from the cabinet front."""
+    return _on_table(ctx, block) and float(ctx.block_pose(block)[0][1]) <= STACK_BASE_MAX_Y
 
 
 def _stacked_top(ctx: SkillContext) -> str:
@@ -192,7 +202,7 @@ def is_feasible(task: str, sim: CalvinSimulation) -> bool:
     if task == "place_in_drawer":
         return held is not None and ctx.joint_state("drawer_link") > layout.drawer_open_min
     if task == "stack_block":
-        return held is not None and any(_on_table(ctx, b) for b in ctx.block_uids if b != held)
+        return held is not None and any(_stack_base(ctx, b) for b in ctx.block_uids if b != held)
     if held is not None or ctx.gripper_width() < 0.005 and ctx.gripper < 0:
         return False  # every other task starts with empty hands (grasped = 0)
     if task == "unstack_block":
