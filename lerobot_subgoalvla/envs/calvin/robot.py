@@ -189,14 +189,7 @@ class PandaRobot:
         c = self.client
         for joint, value in zip(ARM_JOINTS, arm, strict=True):
             c.resetJointState(self.uid, joint, float(value))
-            c.setJointMotorControl2(
-                self.uid,
-                joint,
-                pybullet.POSITION_CONTROL,
-                targetPosition=float(value),
-                force=MAX_JOINT_FORCE,
-                maxVelocity=MAX_JOINT_VELOCITY,
-            )
+        self._command_arm(arm)
         for joint in self.spec.finger_joints:
             c.resetJointState(self.uid, joint, finger)
             c.setJointMotorControl2(
@@ -290,9 +283,12 @@ class PandaRobot:
             maxNumIterations=20,
             residualThreshold=1e-4,
         )
-        targets = np.clip(np.asarray(joints[:7]), ARM_LOWER, ARM_UPPER)
+        self._command_arm(np.clip(np.asarray(joints[:7]), ARM_LOWER, ARM_UPPER))
+
+    def _command_arm(self, targets: np.ndarray | list[float]) -> None:
+        """Position-control the 7 arm joints to ``targets`` (force 200, max 2 rad/s: spec 3.5)."""
         for joint, value in zip(ARM_JOINTS, targets, strict=True):
-            c.setJointMotorControl2(
+            self.client.setJointMotorControl2(
                 self.uid,
                 joint,
                 pybullet.POSITION_CONTROL,
