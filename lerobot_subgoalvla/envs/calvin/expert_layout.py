@@ -114,9 +114,12 @@ class SceneLayout:
         return x, float(ctx.rng.uniform(y_lo, y_hi)), float(np.nanmin(tops))
 
     def above_drawer(self, ctx: SkillContext, block: str) -> bool:
-        """Block x within the drawer (with margin): pushed toward the robot it falls in (push_into_drawer)."""
+        """Block x within the drawer (with margin) and room behind it: pushed toward the robot it falls into the
+        open drawer (push_into_drawer)."""
         x = float(ctx.block_pose(block)[0][0])
-        return self.drawer_x[0] + 0.07 <= x <= self.drawer_x[1] - 0.07
+        back_y = float(ctx.sim.client.getAABB(ctx.block_uids[block])[1][1])
+        # The fingers start ~3 cm behind the block: that point must stay clear of the cabinet front.
+        return self.drawer_x[0] + 0.07 <= x <= self.drawer_x[1] - 0.07 and back_y <= -0.055
 
     # ---------------------------------------------------------------------------------------- desk
     def grasp_clear_of_cabinet(self, ctx: SkillContext, block: str, yaw: float) -> bool:

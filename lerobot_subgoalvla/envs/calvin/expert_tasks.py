@@ -213,7 +213,11 @@ def push_into_drawer(ctx: SkillContext, block: str) -> Skill:
     pos, _ = ctx.block_pose(block)
     ctx.gripper = GRIPPER_CLOSE
     euler = down_euler(HOME_YAW + ctx.rng.uniform(-0.1, 0.1))  # fingers close along x: thin along y
-    start = np.array([pos[0] + ctx.rng.uniform(-0.006, 0.006), pos[1] + 0.05, pos[2] + 0.005])
+    lo, hi = np.asarray(ctx.sim.client.getAABB(ctx.block_uids[block]))
+    behind = 0.5 * (hi[1] - lo[1]) + ctx.rng.uniform(
+        0.028, 0.034
+    )  # fingers (~1.7 cm thick) clear of the block
+    start = np.array([pos[0] + ctx.rng.uniform(-0.006, 0.006), pos[1] + behind, pos[2] + 0.012])
     yield from ctx.servo(start + [0, 0, 0.09], euler, tol=0.015, what="above push start")
     yield from ctx.servo(start, euler, speed=ctx.motion.slow_speed, tol=0.008, what="push start")
     drawer_lo, _ = ctx.link_aabb("drawer_link")
