@@ -15,6 +15,9 @@ The policy is thin: the computation lives in ``model.py``; this module does the 
   subtask, but ``lerobot-eval`` calls ``reset()`` once per rollout, so a change of ``batch["task"]`` (the env
   switches the instruction at each subtask) flushes the queue and restarts the history of the envs whose
   instruction changed (plugin guide pitfall 15).
+- Visualisation: the trace planned with the latest chunk is kept in ``last_subgoal_trace`` (B, M, p), normalised
+  (None without a planner or before the first chunk; cleared by ``reset()``), so a rollout can draw it as ghost
+  robots (paper figure 7, ``subgoalvla-render-traces``) without a second model pass.
 - Hub: loading or pushing a Hub id while ``HF_HUB_OFFLINE=1`` fails with one line naming the local alternative.
 
 Dimension legend: ``B`` batch / parallel envs, ``N`` chunk size, ``A`` action dim, ``h`` history, ``p`` proprio dim.
@@ -150,11 +153,13 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
 
     # Inference ----------------------------------------------------------------------------------------------
     def reset(self) -> None:
-        """Forget the action queue, the state history and the last instruction (start of a rollout)."""
+        """Forget the action queue, the state history, the last instruction and trace (start of a rollout)."""
         self._queue.clear()
         self._history.reset()
         self._last_tasks: list[str] | None = None
         self._num_envs: int | None = None
+        #: The subgoal trace (B, M, p) planned with the latest chunk, normalised; None without a planner.
+        self.last_subgoal_trace: Tensor | None = None
 
     def _on_new_step(self, batch: dict[str, Any], num_envs: int) -> None:
         """Flush the queue and restart the history of envs whose ``batch["task"]`` changed (new subtask).
@@ -177,11 +182,13 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         """A normalised action chunk (B, N, A) for the current observation.
 
         Uses ``batch["observation.state_history"]`` when present (dataset batches, ``select_action``); otherwise
-        pushes ``observation.state`` into the policy's history buffer and uses that.
+        pushes ``observation.state`` into the policy's history buffer and uses that. The planned trace is kept in
+        ``last_subgoal_trace`` (module docstring).
         """
         if STATE_HISTORY_KEY not in batch:
             batch = {**batch, STATE_HISTORY_KEY: self._history.push(batch[STATE_KEY])}
-        actions, _ = self.model.sample_actions(batch)
+        actions, trace = self.model.sample_actions(batch)
+        self.last_subgoal_trace = trace  # (B, M, p) normalised, or None without a planner
         return actions
 
     @torch.no_grad()
