@@ -1,0 +1,177 @@
+"""The nested pieces of :class:`SubgoalVLAConfig` and the values of its presets.
+
+Kept apart from ``configuration_subgoalvla.py`` so that the policy config reads as one page: the backbone, one
+proprioceptive cross-attention stack and one DiT head are each a small dataclass (set on the command line with
+dotted flags such as ``--policy.planner.depth=4``), and ``PRESET_VALUES`` holds what ``--policy.preset`` fills in.
+The paper's values and the choices made where it is inconsistent are documented in ``configuration_subgoalvla``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass
+class BackboneConfig:
+    """The vision-language backbone whose layer-k hidden states the heads read (paper section 4.1).
+
+    Attributes:
+        name_or_path: Hugging Face id or local directory of a LLaVA-architecture checkpoint
+            (``llava-hf/llava-1.5-7b-hf`` in the paper). ``None`` builds a randomly initialised tiny LLaVA from
+            the ``text_*``/``vision_*`` dimensions below (no download).
+        layer: k, the LLM layer whose hidden states H[k] feed the cross-attention. ``None`` means k = m // 2
+            (m = number of LLM layers), the paper's choice; it is resolved from the loaded model.
+        freeze_vision_tower: keep the vision encoder frozen (paper section 5, appendix C); its parameters are
+            then not in any optimizer group.
+        text_hidden_size: tiny LLM hidden size d (``name_or_path=None`` only; pretrained models bring their own).
+        text_num_layers: tiny LLM depth m.
+        text_num_heads: tiny LLM attention heads.
+        text_intermediate_size: tiny LLM MLP width.
+        vision_hidden_size: tiny vision-encoder width.
+        vision_num_layers: tiny vision-encoder depth.
+        vision_num_heads: tiny vision-encoder attention heads.
+        image_size: tiny vision-encoder input size (pixels, square); camera images are resized to it.
+        patch_size: tiny vision-encoder patch size (image_size must be a multiple of it).
+        max_instruction_tokens: instructions are padded/truncated to this many tokens by the preprocessor.
+        torch_dtype: dtype of the backbone weights (``float32``, ``bfloat16``, ``float16``); the heads stay
+            float32.
+    """
+
+    name_or_path: str | None = None
+    layer: int | None = None
+    freeze_vision_tower: bool = True
+    # Tiny architecture (only with name_or_path=None).
+    text_hidden_size: int | None = None
+    text_num_layers: int | None = None
+    text_num_heads: int | None = None
+    text_intermediate_size: int | None = None
+    vision_hidden_size: int | None = None
+    vision_num_layers: int | None = None
+    vision_num_heads: int | None = None
+    image_size: int | None = None
+    patch_size: int | None = None
+    # Tokenisation and precision.
+    max_instruction_tokens: int | None = None
+    torch_dtype: str | None = None
+
+    @property
+    def tiny_architecture_fields(self) -> tuple[str, ...]:
+        """Names of the fields that describe the tiny random LLaVA (None for pretrained backbones)."""
+        return (
+            "text_hidden_size",
+            "text_num_layers",
+            "text_num_heads",
+            "text_intermediate_size",
+            "vision_hidden_size",
+            "vision_num_layers",
+            "vision_num_heads",
+            "image_size",
+            "patch_size",
+        )
+
+
+@dataclass
+class CrossAttentionConfig:
+    """Proprioceptive cross-attention (PCA, paper Eq. 2): queries from the proprioception, keys/values H[k].
+
+    Its width is the backbone's hidden size d (queries are projected into the vision-language space).
+
+    Attributes:
+        num_layers: stacked pre-norm cross-attention + MLP blocks (3 in table 5).
+        num_heads: attention heads (8 in table 5); must divide the backbone hidden size.
+        mlp_ratio: MLP width as a multiple of d.
+        dropout: dropout on attention weights and MLP outputs (the paper uses dropout, rate not given).
+    """
+
+    num_layers: int | None = None
+    num_heads: int | None = None
+    mlp_ratio: float = 4.0
+    dropout: float | None = None
+
+
+@dataclass
+class DiTHeadConfig:
+    """One diffusion-transformer head: the subgoal planner or the action generator (appendix B, tables 6-8).
+
+    Attributes:
+        hidden_size: DiT width (768 for DiT-B).
+        depth: number of adaLN-zero DiT blocks (12 for DiT-B).
+        num_heads: self-attention heads (12 for DiT-B, table 5).
+        mlp_ratio: MLP width as a multiple of hidden_size.
+        num_train_timesteps: T, diffusion timesteps of the squared-cosine schedule (8, tables 6-7).
+        num_inference_steps: DDIM sampling steps (<= num_train_timesteps; see the module docstring).
+        guidance_scale: classifier-free guidance scale s (1.0 disables CFG; the paper uses s > 1 for the planner).
+            Unset: 1.5 for the planner, 1.0 for the generator (module docstring).
+        label_dropout: probability of replacing the conditioning by the learned null condition during training
+            (0.1, appendix B.1); enables CFG.
+        l2_weight: lambda of the L2 penalty on the predicted noise (0.001, appendix B.1).
+        repeated_diffusion_steps: timesteps sampled per training example ("repeated diffusion steps" 8, table 8).
+        clip_sample_range: bound on DDIM's estimate of the clean sample, in normalised units (diffusers
+            ``clip_sample_range``). Needed: the 8-step squared-cosine schedule ends at alpha_bar = 3.7e-5, so the
+            first DDIM step divides the noise-prediction error by sqrt(alpha_bar) (163x). Unset: 1.0 when the
+            head's target is MIN_MAX-normalised (it then lies in [-1, 1]: actions by default), else 4.0 (z-scores:
+            the trace under the default MEAN_STD state normalisation). Added by policy-core (model.py resolves it).
+    """
+
+    hidden_size: int | None = None
+    depth: int | None = None
+    num_heads: int | None = None
+    mlp_ratio: float = 4.0
+    num_train_timesteps: int = 8
+    num_inference_steps: int = 8
+    guidance_scale: float | None = None
+    label_dropout: float = 0.1
+    l2_weight: float = 0.001
+    repeated_diffusion_steps: int = 8
+    clip_sample_range: float | None = None
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Preset values: (dataclass attribute on SubgoalVLAConfig, field) -> value. Only fields that default to None are
+# filled, and only where they are still None.
+# --------------------------------------------------------------------------------------------------------------
+PRESET_VALUES: dict[str, dict[str, dict[str, Any]]] = {
+    "tiny": {
+        "backbone": {
+            "name_or_path": None,
+            "text_hidden_size": 32,
+            "text_num_layers": 4,
+            "text_num_heads": 4,
+            "text_intermediate_size": 64,
+            "vision_hidden_size": 32,
+            "vision_num_layers": 2,
+            "vision_num_heads": 4,
+            "image_size": 32,
+            "patch_size": 8,
+            "max_instruction_tokens": 32,
+            "torch_dtype": "float32",
+        },
+        "planner": {"hidden_size": 32, "depth": 2, "num_heads": 2, "guidance_scale": 1.5},
+        "generator": {"hidden_size": 32, "depth": 2, "num_heads": 2, "guidance_scale": 1.0},
+        "planner_attention": {"num_layers": 1, "num_heads": 2, "dropout": 0.0},
+        "generator_attention": {"num_layers": 1, "num_heads": 2, "dropout": 0.0},
+    },
+    "small": {
+        "backbone": {
+            "name_or_path": "llava-hf/llava-interleave-qwen-0.5b-hf",
+            "max_instruction_tokens": 64,
+            "torch_dtype": "bfloat16",
+        },
+        "planner": {"hidden_size": 384, "depth": 12, "num_heads": 6, "guidance_scale": 1.5},
+        "generator": {"hidden_size": 384, "depth": 12, "num_heads": 6, "guidance_scale": 1.0},
+        "planner_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
+        "generator_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
+    },
+    "paper": {
+        "backbone": {
+            "name_or_path": "llava-hf/llava-1.5-7b-hf",
+            "max_instruction_tokens": 64,
+            "torch_dtype": "bfloat16",
+        },
+        "planner": {"hidden_size": 768, "depth": 12, "num_heads": 12, "guidance_scale": 1.5},
+        "generator": {"hidden_size": 768, "depth": 12, "num_heads": 12, "guidance_scale": 1.0},
+        "planner_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
+        "generator_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
+    },
+}
