@@ -22,7 +22,9 @@ def sim() -> CalvinSimulation:
     simulation.close()
 
 
-def _rollout(sim: CalvinSimulation, task: str, seed: int) -> tuple[bool, list[np.ndarray], ScriptedExpert]:
+def _rollout(
+    sim: CalvinSimulation, task: str, seed: int | list[int]
+) -> tuple[bool, list[np.ndarray], ScriptedExpert]:
     """Random valid start, then the expert until the oracle fires or the budget ends."""
     rng = np.random.default_rng(seed)
     sample_start_state(task, sim, rng)
@@ -113,6 +115,9 @@ def test_tilted_euler_points_fingers_forward() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("task", TASK_NAMES)
 def test_expert_success_rate_per_task(sim: CalvinSimulation, task: str) -> None:
-    episodes = 10
-    successes = sum(_rollout(sim, task, seed)[0] for seed in range(episodes))
+    # The issue's criterion and benchmarks/expert_success.py's protocol: 20 random valid starts per task, episode
+    # i seeded with [i, task id], success = the oracle fires within 360 steps, at least 90 % per task.
+    episodes = 20
+    seeds = ([episode, TASK_NAMES.index(task)] for episode in range(episodes))
+    successes = sum(_rollout(sim, task, seed)[0] for seed in seeds)
     assert successes / episodes >= 0.9, f"{task}: {successes}/{episodes}"
