@@ -1,6 +1,6 @@
 """Scripted expert for the 34 CALVIN tasks, from privileged simulator state (DESIGN.md, "expert" seam).
 
-``ScriptedExpert(sim, task, np_random)`` picks the script of the task's family (``expert_tasks``) and yields one
+``ScriptedExpert(sim, task, np_random)`` picks the script of the task's family (``expert_tasks``, ``expert_fixtures``) and yields one
 relative action per ``act()`` call; the caller steps the sim, so a data generator can record every frame. The
 script reads the state between steps (closed loop), so small physics deviations are corrected. ``done`` turns
 True when the script finished; ``failure`` then holds a reason if it gave up (e.g. a missed grasp).
@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lerobot_subgoalvla.calvin_vocab import check_task_name
+from lerobot_subgoalvla.envs.calvin import expert_fixtures as fixtures
 from lerobot_subgoalvla.envs.calvin import expert_tasks as scripts
 from lerobot_subgoalvla.envs.calvin.expert_layout import SceneLayout
 from lerobot_subgoalvla.envs.calvin.expert_skills import (
@@ -89,9 +90,9 @@ def _script_for(task: str, ctx: SkillContext, layout: SceneLayout) -> Skill:
     if task.startswith("push_"):
         return scripts.push(ctx, f"block_{parts[1]}", direction=1.0 if parts[-1] == "right" else -1.0)
     if task.startswith("move_slider"):
-        return scripts.slider(ctx, direction=-1.0 if parts[-1] == "left" else 1.0)
+        return fixtures.slider(ctx, direction=-1.0 if parts[-1] == "left" else 1.0)
     if task in ("open_drawer", "close_drawer"):
-        return scripts.drawer(ctx, opening=task == "open_drawer")
+        return fixtures.drawer(ctx, opening=task == "open_drawer")
     if task.startswith("lift_"):
         return _lift_script(ctx, layout, f"block_{parts[1]}", parts[-1])
     if task == "place_in_slider":
@@ -103,8 +104,8 @@ def _script_for(task: str, ctx: SkillContext, layout: SceneLayout) -> Skill:
     if task == "unstack_block":
         return scripts.lift(ctx, _stacked_top(ctx), height=0.08)
     if task.startswith("turn_") and task.endswith("led"):
-        return scripts.press_button(ctx)
-    return scripts.move_switch(ctx, up=task == "turn_on_lightbulb")
+        return fixtures.press_button(ctx)
+    return fixtures.move_switch(ctx, up=task == "turn_on_lightbulb")
 
 
 def _lift_script(ctx: SkillContext, layout: SceneLayout, block: str, surface: str) -> Skill:
