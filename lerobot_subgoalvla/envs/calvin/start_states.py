@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS, check_task_name
+from lerobot_subgoalvla.envs.calvin.chain_scene import EVAL_ROBOT_OBS
 from lerobot_subgoalvla.envs.calvin.expert import ScriptedExpert, is_feasible
 from lerobot_subgoalvla.envs.calvin.expert_layout import SceneLayout
 from lerobot_subgoalvla.envs.calvin.expert_skills import ExpertFailureError, Motion, SkillContext
@@ -26,11 +27,6 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-#: CALVIN's evaluation robot state (spec 4.2): neutral pose, gripper open.
-EVAL_ROBOT_OBS = np.array([
-    0.02586889, -0.2313129, 0.5712808, 3.09045411, -0.02908596, 1.50013585, 0.07999963,
-    -1.21779124, 1.03987629, 2.11978254, -2.34205014, -0.87015899, 1.64119093, 0.55344928, 1.0,
-])  # fmt: skip
 #: Yaw band of blocks that the expert takes out of the cabinet or drawer (CALVIN's chains: pi/2 +- pi/8, spec 4.2).
 CABINET_YAW = (np.pi / 2 - np.pi / 8, np.pi / 2 + np.pi / 8)
 SETTLE_STEPS = 4
