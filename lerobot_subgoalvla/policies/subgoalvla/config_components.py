@@ -12,6 +12,12 @@ from dataclasses import dataclass
 from typing import Any
 
 
+def require_positive(name: str, value: int | float | None) -> None:
+    """Raise one line naming ``--policy.<name>`` unless ``value`` is a positive number."""
+    if value is None or value <= 0:
+        raise ValueError(f"--policy.{name} must be positive, got {value!r}")
+
+
 @dataclass
 class BackboneConfig:
     """The vision-language backbone whose layer-k hidden states the heads read (paper section 4.1).
@@ -89,6 +95,14 @@ class CrossAttentionConfig:
     mlp_ratio: float = 4.0
     dropout: float | None = None
 
+    def validate(self, name: str) -> None:
+        """Reject bad values with one line naming the flag ``--policy.<name>.<field>`` and what is allowed."""
+        require_positive(f"{name}.num_layers", self.num_layers)
+        require_positive(f"{name}.num_heads", self.num_heads)
+        require_positive(f"{name}.mlp_ratio", self.mlp_ratio)
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"--policy.{name}.dropout must be in [0, 1), got {self.dropout}")
+
 
 @dataclass
 class DiTHeadConfig:
@@ -125,6 +139,33 @@ class DiTHeadConfig:
     l2_weight: float = 0.001
     repeated_diffusion_steps: int = 8
     clip_sample_range: float | None = None
+
+    def validate(self, name: str) -> None:
+        """Reject bad values with one line naming the flag ``--policy.<name>.<field>`` and what is allowed."""
+        for attr in ("hidden_size", "depth", "num_heads", "mlp_ratio", "num_train_timesteps"):
+            require_positive(f"{name}.{attr}", getattr(self, attr))
+        require_positive(f"{name}.num_inference_steps", self.num_inference_steps)
+        require_positive(f"{name}.repeated_diffusion_steps", self.repeated_diffusion_steps)
+        if self.clip_sample_range is not None:
+            require_positive(f"{name}.clip_sample_range", self.clip_sample_range)
+        if self.hidden_size % self.num_heads != 0:
+            raise ValueError(
+                f"--policy.{name}.hidden_size={self.hidden_size} must be divisible by "
+                f"--policy.{name}.num_heads={self.num_heads}"
+            )
+        if self.num_inference_steps > self.num_train_timesteps:
+            raise ValueError(
+                f"--policy.{name}.num_inference_steps={self.num_inference_steps} must be <= "
+                f"--policy.{name}.num_train_timesteps={self.num_train_timesteps} (DDIM skips timesteps, it cannot add any)"
+            )
+        if self.guidance_scale < 1.0:
+            raise ValueError(
+                f"--policy.{name}.guidance_scale must be >= 1 (1 disables CFG), got {self.guidance_scale}"
+            )
+        if not 0.0 <= self.label_dropout < 1.0:
+            raise ValueError(f"--policy.{name}.label_dropout must be in [0, 1), got {self.label_dropout}")
+        if self.l2_weight < 0:
+            raise ValueError(f"--policy.{name}.l2_weight must be >= 0, got {self.l2_weight}")
 
 
 # --------------------------------------------------------------------------------------------------------------

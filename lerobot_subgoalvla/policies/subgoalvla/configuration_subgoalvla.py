@@ -45,6 +45,7 @@ from lerobot_subgoalvla.policies.subgoalvla.config_components import (
     BackboneConfig,
     CrossAttentionConfig,
     DiTHeadConfig,
+    require_positive,
 )
 
 logger = logging.getLogger(__name__)
@@ -66,11 +67,6 @@ PRESETS = ("tiny", "small", "paper")
 FEATURE_AGGREGATIONS = ("proprio_xattn", "mean", "max", "attn")
 STAGES = ("stage1", "stage2")
 TORCH_DTYPES = ("float32", "bfloat16", "float16")
-
-
-def _require_positive(name: str, value: int | float | None) -> None:
-    if value is None or value <= 0:
-        raise ValueError(f"--policy.{name} must be positive, got {value!r}")
 
 
 def _require_choice(name: str, value: str, allowed: tuple[str, ...]) -> None:
@@ -202,9 +198,9 @@ class SubgoalVLAConfig(PreTrainedConfig):
         _require_choice("stage", self.stage, STAGES)
         _require_choice("backbone.torch_dtype", self.backbone.torch_dtype, TORCH_DTYPES)
         for name in ("state_history_len", "subgoal_trace_len", "chunk_size", "n_action_steps"):
-            _require_positive(name, getattr(self, name))
-        _require_positive("aggregation_top_k", self.aggregation_top_k)
-        _require_positive("backbone.max_instruction_tokens", self.backbone.max_instruction_tokens)
+            require_positive(name, getattr(self, name))
+        require_positive("aggregation_top_k", self.aggregation_top_k)
+        require_positive("backbone.max_instruction_tokens", self.backbone.max_instruction_tokens)
         if self.n_action_steps > self.chunk_size:
             raise ValueError(
                 f"--policy.n_action_steps={self.n_action_steps} must be <= --policy.chunk_size={self.chunk_size}"
@@ -217,27 +213,27 @@ class SubgoalVLAConfig(PreTrainedConfig):
             )
         self._validate_backbone()
         for name in ("planner", "generator"):
-            self._validate_head(name, getattr(self, name))
+            getattr(self, name).validate(name)
         for name in ("planner_attention", "generator_attention"):
-            self._validate_attention(name, getattr(self, name))
+            getattr(self, name).validate(name)
         for name in (
             "optimizer_lr_projector",
             "optimizer_lr_llm",
             "optimizer_lr_heads",
             "scheduler_decay_lr",
         ):
-            _require_positive(name, getattr(self, name))
+            require_positive(name, getattr(self, name))
         if not 0.0 <= self.scheduler_warmup_ratio < 1.0:
             raise ValueError(
                 f"--policy.scheduler_warmup_ratio must be in [0, 1), got {self.scheduler_warmup_ratio}"
             )
-        _require_positive("scheduler_decay_steps", self.scheduler_decay_steps)
+        require_positive("scheduler_decay_steps", self.scheduler_decay_steps)
 
     def _validate_backbone(self) -> None:
         bb = self.backbone
         if bb.name_or_path is None:
             for name in bb.tiny_architecture_fields:
-                _require_positive(f"backbone.{name}", getattr(bb, name))
+                require_positive(f"backbone.{name}", getattr(bb, name))
             if bb.image_size % bb.patch_size != 0:
                 raise ValueError(
                     f"--policy.backbone.image_size={bb.image_size} must be a multiple of "
@@ -264,41 +260,6 @@ class SubgoalVLAConfig(PreTrainedConfig):
                 )
             if bb.layer is not None and bb.layer < 1:
                 raise ValueError(f"--policy.backbone.layer must be >= 1, got {bb.layer}")
-
-    @staticmethod
-    def _validate_head(name: str, head: DiTHeadConfig) -> None:
-        for attr in ("hidden_size", "depth", "num_heads", "mlp_ratio", "num_train_timesteps"):
-            _require_positive(f"{name}.{attr}", getattr(head, attr))
-        _require_positive(f"{name}.num_inference_steps", head.num_inference_steps)
-        _require_positive(f"{name}.repeated_diffusion_steps", head.repeated_diffusion_steps)
-        if head.clip_sample_range is not None:
-            _require_positive(f"{name}.clip_sample_range", head.clip_sample_range)
-        if head.hidden_size % head.num_heads != 0:
-            raise ValueError(
-                f"--policy.{name}.hidden_size={head.hidden_size} must be divisible by "
-                f"--policy.{name}.num_heads={head.num_heads}"
-            )
-        if head.num_inference_steps > head.num_train_timesteps:
-            raise ValueError(
-                f"--policy.{name}.num_inference_steps={head.num_inference_steps} must be <= "
-                f"--policy.{name}.num_train_timesteps={head.num_train_timesteps} (DDIM skips timesteps, it cannot add any)"
-            )
-        if head.guidance_scale < 1.0:
-            raise ValueError(
-                f"--policy.{name}.guidance_scale must be >= 1 (1 disables CFG), got {head.guidance_scale}"
-            )
-        if not 0.0 <= head.label_dropout < 1.0:
-            raise ValueError(f"--policy.{name}.label_dropout must be in [0, 1), got {head.label_dropout}")
-        if head.l2_weight < 0:
-            raise ValueError(f"--policy.{name}.l2_weight must be >= 0, got {head.l2_weight}")
-
-    @staticmethod
-    def _validate_attention(name: str, attn: CrossAttentionConfig) -> None:
-        _require_positive(f"{name}.num_layers", attn.num_layers)
-        _require_positive(f"{name}.num_heads", attn.num_heads)
-        _require_positive(f"{name}.mlp_ratio", attn.mlp_ratio)
-        if not 0.0 <= attn.dropout < 1.0:
-            raise ValueError(f"--policy.{name}.dropout must be in [0, 1), got {attn.dropout}")
 
     # Features -----------------------------------------------------------------------------------------------
     def validate_features(self) -> None:
