@@ -28,16 +28,15 @@ from typing import Any
 
 import numpy as np
 import torch
-from lerobot.configs import FeatureType, NormalizationMode, PreTrainedConfig
+from lerobot.configs import FeatureType, PreTrainedConfig
 from lerobot.envs.utils import preprocess_observation
 from lerobot.policies import get_policy_class, make_pre_post_processors
-from lerobot.processor import NormalizerProcessorStep
-from lerobot.utils.constants import OBS_STATE
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
 from lerobot_subgoalvla.envs.calvin.configs import LH_MTLC, SCENES
 from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
 from lerobot_subgoalvla.envs.calvin.trace_render import render_trace, write_trace_media
+from lerobot_subgoalvla.policies.subgoalvla.proprio_normalization import ProprioNormalizerProcessorStep
 
 logger = logging.getLogger(__name__)
 
@@ -45,12 +44,12 @@ STATIC_IMAGE_KEY = "observation.images.static"
 GRIPPER_IMAGE_KEY = "observation.images.gripper"
 
 
-def _state_normalizer(preprocessor: Any) -> NormalizerProcessorStep:
-    """The pre-processor's ``NormalizerProcessorStep`` (it normalises ``observation.state`` and its sequences)."""
-    steps = [step for step in preprocessor.steps if isinstance(step, NormalizerProcessorStep)]
+def _proprio_normalizer(preprocessor: Any) -> ProprioNormalizerProcessorStep:
+    """The pre-processor's ``subgoalvla_proprio_normalizer`` (it normalises state, history and trace)."""
+    steps = [step for step in preprocessor.steps if isinstance(step, ProprioNormalizerProcessorStep)]
     if len(steps) != 1:
         raise ValueError(
-            f"the pre-processor has {len(steps)} normalizer_processor steps, expected exactly one; "
+            f"the pre-processor has {len(steps)} subgoalvla_proprio_normalizer steps, expected exactly one; "
             "load the policy_preprocessor.json saved with the checkpoint"
         )
     return steps[0]
@@ -59,40 +58,10 @@ def _state_normalizer(preprocessor: Any) -> NormalizerProcessorStep:
 def unnormalize_state(preprocessor: Any, tensor: torch.Tensor) -> torch.Tensor:
     """Invert the pre-processor's normalisation of ``observation.state`` on ``(..., p)`` rows.
 
-    The exact inverse of LeRobot's ``NormalizerProcessorStep`` forward pass (its own ``eps`` included):
-    MEAN_STD ``x = y (std + eps) + mean``; MIN_MAX ``x = (y + 1) / 2 (max - min) + min`` (``eps`` where
-    max = min). The statistics are read from the saved step (``stats``), so a trace comes back in the units of
-    the states the policy was trained on.
-
-    Raises:
-        ValueError: no ``observation.state`` statistics, or a normalisation mode other than MEAN_STD / MIN_MAX /
-            IDENTITY.
+    The exact inverse of :class:`ProprioNormalizerProcessorStep` with the statistics saved in the checkpoint, so
+    a trace comes back in ``robot_obs`` units (angles wrapped to [-pi, pi)).
     """
-    step = _state_normalizer(preprocessor)
-    feature = step.features.get(OBS_STATE)
-    if feature is None:
-        raise ValueError(f"the checkpoint's normalizer_processor has no {OBS_STATE!r} feature")
-    mode = step.norm_map.get(feature.type, NormalizationMode.IDENTITY)
-    if mode == NormalizationMode.IDENTITY:
-        return tensor
-    stats = (step.stats or {}).get(OBS_STATE)
-    if stats is None:
-        raise ValueError(f"the checkpoint's normalizer_processor has no statistics for {OBS_STATE!r}")
-
-    def stat(name: str) -> torch.Tensor:
-        return torch.as_tensor(np.asarray(stats[name]), dtype=tensor.dtype, device=tensor.device)  # (p,)
-
-    if mode == NormalizationMode.MEAN_STD:
-        return tensor * (stat("std") + step.eps) + stat("mean")
-    if mode == NormalizationMode.MIN_MAX:
-        low = stat("min")
-        span = stat("max") - low
-        span = torch.where(span == 0, torch.full_like(span, step.eps), span)
-        return (tensor + 1) / 2 * span + low
-    raise ValueError(
-        f"{OBS_STATE} uses normalisation mode {mode.value}; subgoal traces can be un-normalised only for "
-        "MEAN_STD or MIN_MAX (set --policy.normalization_mapping STATE to one of them when training)"
-    )
+    return _proprio_normalizer(preprocessor).decode(tensor)
 
 
 def rollout_with_traces(

@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from lerobot_subgoalvla.calvin_vocab import TASK_NAMES, check_task_name
 from lerobot_subgoalvla.datasets_conversion.calvin_format import (
     SPLITS,
     LanguageAnnotations,
@@ -72,8 +73,13 @@ class GeneratorOptions:
     max_steps_per_task: int = 360
     static_size: int = 200
     gripper_size: int = 84
+    tasks: tuple[str, ...] = TASK_NAMES
 
     def __post_init__(self) -> None:
+        if not self.tasks:
+            raise ValueError("--tasks needs at least one CALVIN task name")
+        for task in self.tasks:
+            check_task_name(task)
         if self.num_tasks < 1 or self.tasks_per_segment < 1:
             raise ValueError("--num-tasks and --tasks-per-segment must be >= 1")
         if not 0.0 <= self.val_fraction < 1.0:
@@ -130,7 +136,7 @@ def generate_segment(job: SegmentJob) -> int:
             raise ValueError(
                 f"scene {opts.scene}: simulation slot order {slot_order} differs from calvin_quirks"
             )
-        segment = record_segment(sim, job.num_tasks, rng, opts.max_steps_per_task)
+        segment = record_segment(sim, job.num_tasks, rng, opts.max_steps_per_task, opts.tasks)
     finally:
         sim.close()
     for t in range(segment.num_frames):
@@ -183,7 +189,7 @@ def _assemble_split(output: Path, name: str, jobs: list[SegmentJob], opts: Gener
 
 def _check_options(segments_dir: Path, opts: GeneratorOptions) -> None:
     path = segments_dir / "options.json"
-    record = asdict(opts)
+    record = json.loads(json.dumps(asdict(opts)))  # tuples as JSON lists, as read back
     if path.is_file() and json.loads(path.read_text()) != record:
         raise ValueError(
             f"{path}: OUTPUT holds a generation with other options; rerun with them or use a new --output"
@@ -239,7 +245,22 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--max-steps-per-task", type=int, default=360)
     parser.add_argument("--static-size", type=int, default=200)
     parser.add_argument("--gripper-size", type=int, default=84)
+    parser.add_argument(
+        "--tasks",
+        type=_task_list,
+        default=TASK_NAMES,
+        help="comma-separated CALVIN task names the expert may play (default: all 34), e.g. open_drawer,close_drawer",
+    )
     return parser.parse_args(argv)
+
+
+def _task_list(text: str) -> tuple[str, ...]:
+    """``--tasks a,b`` -> ("a", "b"); an unknown name is an argparse error naming the valid ones."""
+    names = tuple(name.strip() for name in text.split(",") if name.strip())
+    try:
+        return tuple(check_task_name(name) for name in names)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from error
 
 
 def main(argv: Sequence[str] | None = None) -> None:

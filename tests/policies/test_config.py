@@ -74,7 +74,7 @@ def test_saved_config_reloads_exactly(tmp_path) -> None:
 @pytest.mark.parametrize(
     ("flags", "message"),
     [
-        (["--preset=huge"], "allowed values: tiny, small, paper"),
+        (["--preset=huge"], "allowed values: tiny, laptop, small, paper"),
         (["--feature_aggregation=sum"], "allowed values: proprio_xattn, mean, max, attn"),
         (["--stage=stage3"], "allowed values: stage1, stage2"),
         (["--backbone.torch_dtype=int8"], "allowed values: float32, bfloat16, float16"),
@@ -159,19 +159,56 @@ def test_delta_indices_and_stage_schedule() -> None:
     )  # continuing a stage I ckpt
 
 
-def test_optimizer_and_scheduler_presets_follow_table_8() -> None:
-    cfg = parse()
+def _lr_curve(cfg, steps: int) -> list[float]:
     optimizer_cfg = cfg.get_optimizer_preset()
-    assert optimizer_cfg.type == "adamw" and optimizer_cfg.weight_decay == 0.01
     param = torch.nn.Parameter(torch.zeros(1))
     optimizer = optimizer_cfg.build([{"params": [param], "lr": cfg.optimizer_lr_heads}])
-    scheduler = cfg.get_scheduler_preset().build(optimizer, num_training_steps=200)
+    scheduler = cfg.get_scheduler_preset().build(optimizer, num_training_steps=steps)
     lrs = []
-    for _ in range(200):
+    for _ in range(steps):
         lrs.append(optimizer.param_groups[0]["lr"])
         optimizer.step()
         scheduler.step()
+    return lrs
+
+
+def test_optimizer_and_scheduler_presets_follow_table_8() -> None:
+    cfg = parse("--preset=paper")
+    optimizer_cfg = cfg.get_optimizer_preset()
+    assert optimizer_cfg.type == "adamw" and optimizer_cfg.weight_decay == 0.01
+    lrs = _lr_curve(cfg, 200)
     peak = max(lrs)
-    assert lrs.index(peak) == 10  # warmup = 5% of the 200 steps
+    assert lrs.index(peak) == 9  # warmup = 5% of the 200 steps (steps 0..9 ramp up to the peak)
     assert peak == pytest.approx(1e-4, rel=0.01)
     assert lrs[-1] == pytest.approx(3e-6, rel=0.05)  # cosine decays to 3e-6 at the end of the run
+
+
+def test_stage_two_restarts_the_schedule_at_the_switch() -> None:
+    """A one-run switch gives stage II its own warmup and cosine from the peak (not 27 % of it)."""
+    cfg = parse("--preset=paper", "--stage2_start_step=120")
+    lrs = _lr_curve(cfg, 200)
+    assert lrs[119] == pytest.approx(3e-6, rel=0.05)  # stage I ends at its floor
+    assert max(lrs[120:]) == pytest.approx(1e-4, rel=0.01)  # stage II climbs back to the peak
+    assert lrs[-1] == pytest.approx(3e-6, rel=0.05)
+
+
+def test_short_run_presets_use_the_short_run_recipe() -> None:
+    for preset in ("tiny", "laptop"):
+        cfg = parse(f"--preset={preset}")
+        assert (cfg.optimizer_lr_heads, cfg.optimizer_lr_llm, cfg.optimizer_lr_projector) == (
+            1e-3,
+            3e-4,
+            3e-4,
+        )
+        assert cfg.dtype == "float32"
+    laptop = parse("--preset=laptop")
+    assert not laptop.backbone.freeze_vision_tower  # a random vision tower has to learn
+    assert laptop.backbone.image_size > parse().backbone.image_size
+    assert parse("--preset=laptop", "--optimizer_lr_heads=5e-4").optimizer_lr_heads == 5e-4  # flags win
+
+
+def test_large_presets_train_in_mixed_precision_with_float32_weights() -> None:
+    for preset in ("small", "paper"):
+        cfg = parse(f"--preset={preset}")
+        assert cfg.dtype == "bfloat16"  # lerobot-train: accelerate bf16 autocast
+        assert cfg.backbone.torch_dtype == "float32"  # master weights stay float32

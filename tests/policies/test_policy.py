@@ -44,8 +44,9 @@ def test_forward_gives_finite_losses_and_gradients_reach_every_group(
     assert all(p.grad is None for p in policy.model.backbone.vision_parameters())  # frozen
 
 
-def test_optimizer_groups_have_the_papers_learning_rates(make_config, make_policy_and_processors) -> None:
-    policy, _, _ = make_policy_and_processors(make_config())
+def test_optimizer_groups_have_the_configured_learning_rates(make_config, make_policy_and_processors) -> None:
+    rates = {"optimizer_lr_heads": 1e-4, "optimizer_lr_projector": 1e-5, "optimizer_lr_llm": 2e-5}
+    policy, _, _ = make_policy_and_processors(make_config(**rates))
     groups = policy.get_optim_params()
     assert [g["lr"] for g in groups] == [1e-4, 1e-5, 2e-5]  # heads first: LeRobot logs param_groups[0]
     grouped = {id(p) for g in groups for p in g["params"]}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -35,21 +36,36 @@ def test_pipelines_follow_lerobots_naming_contract(make_config, make_processors)
     assert ProcessorStepRegistry.get("subgoalvla_tokenizer_processor") is SubgoalVLATokenizerProcessorStep
 
 
+def _expected_proprio(raw: torch.Tensor, mean: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
+    """Linear dims z-scored with the state statistics; TCP angles (3, 4, 5) as wrap(angle - (pi, 0, 0))."""
+    expected = (raw - mean) / (std + 1e-8)
+    home = torch.tensor([math.pi, 0.0, 0.0])
+    expected[..., 3:6] = torch.remainder(raw[..., 3:6] - home + math.pi, 2 * math.pi) - math.pi
+    return expected
+
+
 def test_history_and_trace_use_the_state_statistics(make_config, make_processors, raw_batch, tiny_dataset):
     pre, _ = make_processors(make_config())
     out = pre(dict(raw_batch))
     mean, std = _state_stats(tiny_dataset)
-    eps = 1e-8
-    torch.testing.assert_close(out[STATE], (raw_batch[STATE] - mean) / (std + eps))
-    torch.testing.assert_close(out[HISTORY], (raw_batch[HISTORY] - mean) / (std + eps))
-    torch.testing.assert_close(out[TRACE], (raw_batch[TRACE] - mean) / (std + eps))
+    for key in (STATE, HISTORY, TRACE):
+        torch.testing.assert_close(out[key], _expected_proprio(raw_batch[key], mean, std))
     # LeRobot's own pooled statistics of the history column differ, so this is a real choice, not a coincidence
     own = tiny_dataset.meta.stats[HISTORY]
     assert not torch.allclose(torch.as_tensor(own["mean"]).float(), mean)
     assert (
         out["observation.images.static"].min() >= 0 and out["observation.images.static"].max() <= 1
     )  # [0, 1]
-    assert "subgoalvla_packed_state_rows" not in out
+
+
+def test_wrapping_roll_stays_continuous(make_config, make_processors, raw_batch) -> None:
+    """A roll of +pi - 0.01 and -pi + 0.01 are 0.02 rad apart: so are their normalised values."""
+    pre, _ = make_processors(make_config())
+    batch = dict(raw_batch)
+    state = batch[STATE].clone()
+    state[0, 3], state[1, 3] = math.pi - 0.01, -math.pi + 0.01
+    out = pre({**batch, STATE: state})[STATE]
+    assert abs(float(out[0, 3] - out[1, 3])) == pytest.approx(0.02, abs=1e-5)
 
 
 def test_instruction_tokens_follow_the_llava_protocol(make_config, make_processors, raw_batch) -> None:
@@ -91,7 +107,8 @@ def test_saved_pipelines_reload_for_evaluation(make_config, make_processors, raw
 
 
 def test_finetuning_stat_overrides_keep_the_sharing(make_config, make_processors, raw_batch, tmp_path):
-    """``lerobot-train --policy.path=...`` overrides the normaliser's stats with the raw dataset stats."""
+    """``lerobot-train --policy.path=...`` overrides the normaliser's stats with the raw dataset stats: the
+    proprioception is normalised by our own step, so its numbers stay those of the checkpoint (never twice)."""
     cfg = make_config()
     pre, post = make_processors(cfg)
     pre.save_pretrained(tmp_path)
@@ -112,9 +129,18 @@ def test_finetuning_stat_overrides_keep_the_sharing(make_config, make_processors
             "normalizer_processor": {"stats": stats},
         },
     )
-    out = pre2(dict(raw_batch))
-    torch.testing.assert_close(out[HISTORY], (raw_batch[HISTORY] - 0.5) / (2.0 + 1e-8))
-    torch.testing.assert_close(out[TRACE], (raw_batch[TRACE] - 0.5) / (2.0 + 1e-8))
+    out, reference = pre2(dict(raw_batch)), pre(dict(raw_batch))
+    for key in (STATE, HISTORY, TRACE):
+        torch.testing.assert_close(out[key], reference[key])
+
+
+def test_state_normalisation_other_than_identity_is_refused(make_config) -> None:
+    from lerobot.configs import NormalizationMode
+
+    mapping = {"VISUAL": NormalizationMode.IDENTITY, "STATE": NormalizationMode.MEAN_STD,
+               "ENV": NormalizationMode.IDENTITY, "ACTION": NormalizationMode.MIN_MAX}  # fmt: skip
+    with pytest.raises(ValueError, match="STATE: IDENTITY"):
+        make_config(normalization_mapping=mapping)
 
 
 def test_postprocessor_inverts_the_action_normalisation(make_config, make_processors, raw_batch) -> None:

@@ -49,7 +49,7 @@ from transformers import (
 )
 from transformers.utils.constants import OPENAI_CLIP_MEAN, OPENAI_CLIP_STD
 
-from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS, TASK_NAMES
+from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS, TASK_NAMES, TRAINING_ANNOTATIONS
 
 logger = logging.getLogger(__name__)
 
@@ -78,11 +78,14 @@ class TinyLlavaDims:
 def tiny_vocabulary() -> list[str]:
     """The tiny tokenizer's words: specials, then every word of CALVIN's instructions and task names, sorted.
 
-    Deterministic (depends only on ``calvin_vocab``), so a saved pipeline rebuilds the identical tokenizer.
+    Covers the 389 training annotations (what the training windows carry) and the evaluation instructions (what
+    the benchmark asks), so no CALVIN instruction has an unknown word. Deterministic (depends only on
+    ``calvin_vocab``), so a saved pipeline rebuilds the identical tokenizer.
     """
     splitter = pre_tokenizers.Whitespace()
     words: set[str] = set()
-    for text in (*EVAL_INSTRUCTIONS.values(), *(name.replace("_", " ") for name in TASK_NAMES)):
+    training = (text for annotations in TRAINING_ANNOTATIONS.values() for text in annotations)
+    for text in (*EVAL_INSTRUCTIONS.values(), *training, *(name.replace("_", " ") for name in TASK_NAMES)):
         words.update(word for word, _ in splitter.pre_tokenize_str(text.lower()))
     return [PAD_TOKEN, UNK_TOKEN, IMAGE_TOKEN, *sorted(words)]
 

@@ -29,7 +29,7 @@ class BackboneConfig:
         layer: k, the LLM layer whose hidden states H[k] feed the cross-attention. ``None`` means k = m // 2
             (m = number of LLM layers), the paper's choice; it is resolved from the loaded model.
         freeze_vision_tower: keep the vision encoder frozen (paper section 5, appendix C); its parameters are
-            then not in any optimizer group.
+            then not in any optimizer group. Unset: frozen, except in ``laptop`` (a random tower must learn).
         text_hidden_size: tiny LLM hidden size d (``name_or_path=None`` only; pretrained models bring their own).
         text_num_layers: tiny LLM depth m.
         text_num_heads: tiny LLM attention heads.
@@ -41,12 +41,13 @@ class BackboneConfig:
         patch_size: tiny vision-encoder patch size (image_size must be a multiple of it).
         max_instruction_tokens: instructions are padded/truncated to this many tokens by the preprocessor.
         torch_dtype: dtype of the backbone weights (``float32``, ``bfloat16``, ``float16``); the heads stay
-            float32.
+            float32. Train in float32 with ``--policy.dtype=bfloat16`` (mixed precision); bf16 weights suit
+            inference only.
     """
 
     name_or_path: str | None = None
     layer: int | None = None
-    freeze_vision_tower: bool = True
+    freeze_vision_tower: bool | None = None
     # Tiny architecture (only with name_or_path=None).
     text_hidden_size: int | None = None
     text_num_layers: int | None = None
@@ -120,7 +121,8 @@ class DiTHeadConfig:
         label_dropout: probability of replacing the conditioning by the learned null condition during training
             (0.1, appendix B.1); enables CFG.
         l2_weight: lambda of the L2 penalty on the predicted noise (0.001, appendix B.1).
-        repeated_diffusion_steps: timesteps sampled per training example ("repeated diffusion steps" 8, table 8).
+        repeated_diffusion_steps: timesteps sampled per training example ("repeated diffusion steps" 8, table 8;
+            4 in ``laptop``, where the heads dominate a CPU update).
         clip_sample_range: bound on DDIM's estimate of the clean sample, in normalised units (diffusers
             ``clip_sample_range``). Needed: the 8-step squared-cosine schedule ends at alpha_bar = 3.7e-5, so the
             first DDIM step divides the noise-prediction error by sqrt(alpha_bar) (163x). Unset: 1.0 when the
@@ -137,7 +139,7 @@ class DiTHeadConfig:
     guidance_scale: float | None = None
     label_dropout: float = 0.1
     l2_weight: float = 0.001
-    repeated_diffusion_steps: int = 8
+    repeated_diffusion_steps: int | None = None
     clip_sample_range: float | None = None
 
     def validate(self, name: str) -> None:
@@ -169,11 +171,29 @@ class DiTHeadConfig:
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Preset values: (dataclass attribute on SubgoalVLAConfig, field) -> value. Only fields that default to None are
-# filled, and only where they are still None.
+# Preset values: (dataclass attribute on SubgoalVLAConfig, field) -> value; "recipe" holds fields of the config
+# itself. Only fields that default to None are filled, and only where they are still None.
 # --------------------------------------------------------------------------------------------------------------
+_PAPER_RECIPE = {  # table 8 and section 5
+    "optimizer_lr_projector": 1e-5,
+    "optimizer_lr_llm": 2e-5,
+    "optimizer_lr_heads": 1e-4,
+    "scheduler_warmup_ratio": 0.05,
+    "scheduler_decay_lr": 3e-6,
+}
+#: Short CPU runs (minutes, not days): 10x the paper's head rate, every backbone part at 3e-4 (a random backbone
+#: must learn from scratch), a short warmup and a cosine to 1 % so the last steps refine rather than jitter.
+_SHORT_RUN_RECIPE = {
+    "optimizer_lr_projector": 3e-4,
+    "optimizer_lr_llm": 3e-4,
+    "optimizer_lr_heads": 1e-3,
+    "scheduler_warmup_ratio": 0.02,
+    "scheduler_decay_lr": 1e-5,
+}
+
 PRESET_VALUES: dict[str, dict[str, dict[str, Any]]] = {
     "tiny": {
+        "recipe": {**_SHORT_RUN_RECIPE, "dtype": "float32"},
         "backbone": {
             "name_or_path": None,
             "text_hidden_size": 32,
@@ -187,31 +207,106 @@ PRESET_VALUES: dict[str, dict[str, dict[str, Any]]] = {
             "patch_size": 8,
             "max_instruction_tokens": 32,
             "torch_dtype": "float32",
+            "freeze_vision_tower": True,
         },
-        "planner": {"hidden_size": 32, "depth": 2, "num_heads": 2, "guidance_scale": 1.5},
-        "generator": {"hidden_size": 32, "depth": 2, "num_heads": 2, "guidance_scale": 1.0},
+        "planner": {
+            "hidden_size": 32,
+            "depth": 2,
+            "num_heads": 2,
+            "guidance_scale": 1.5,
+            "repeated_diffusion_steps": 8,
+        },
+        "generator": {
+            "hidden_size": 32,
+            "depth": 2,
+            "num_heads": 2,
+            "guidance_scale": 1.0,
+            "repeated_diffusion_steps": 8,
+        },
         "planner_attention": {"num_layers": 1, "num_heads": 2, "dropout": 0.0},
         "generator_attention": {"num_layers": 1, "num_heads": 2, "dropout": 0.0},
     },
+    "laptop": {
+        "recipe": {**_SHORT_RUN_RECIPE, "dtype": "float32"},
+        "backbone": {
+            "name_or_path": None,
+            "text_hidden_size": 64,
+            "text_num_layers": 4,
+            "text_num_heads": 4,
+            "text_intermediate_size": 256,
+            "vision_hidden_size": 64,
+            "vision_num_layers": 3,
+            "vision_num_heads": 4,
+            "image_size": 80,
+            "patch_size": 10,
+            "max_instruction_tokens": 24,
+            "torch_dtype": "float32",
+            "freeze_vision_tower": False,
+        },
+        "planner": {
+            "hidden_size": 64,
+            "depth": 3,
+            "num_heads": 4,
+            "guidance_scale": 1.5,
+            "repeated_diffusion_steps": 4,
+        },
+        "generator": {
+            "hidden_size": 64,
+            "depth": 3,
+            "num_heads": 4,
+            "guidance_scale": 1.0,
+            "repeated_diffusion_steps": 4,
+        },
+        "planner_attention": {"num_layers": 2, "num_heads": 4, "dropout": 0.0},
+        "generator_attention": {"num_layers": 2, "num_heads": 4, "dropout": 0.0},
+    },
     "small": {
+        "recipe": {**_PAPER_RECIPE, "dtype": "bfloat16"},
         "backbone": {
             "name_or_path": "llava-hf/llava-interleave-qwen-0.5b-hf",
             "max_instruction_tokens": 64,
-            "torch_dtype": "bfloat16",
+            "torch_dtype": "float32",
+            "freeze_vision_tower": True,
         },
-        "planner": {"hidden_size": 384, "depth": 12, "num_heads": 6, "guidance_scale": 1.5},
-        "generator": {"hidden_size": 384, "depth": 12, "num_heads": 6, "guidance_scale": 1.0},
+        "planner": {
+            "hidden_size": 384,
+            "depth": 12,
+            "num_heads": 6,
+            "guidance_scale": 1.5,
+            "repeated_diffusion_steps": 8,
+        },
+        "generator": {
+            "hidden_size": 384,
+            "depth": 12,
+            "num_heads": 6,
+            "guidance_scale": 1.0,
+            "repeated_diffusion_steps": 8,
+        },
         "planner_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
         "generator_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
     },
     "paper": {
+        "recipe": {**_PAPER_RECIPE, "dtype": "bfloat16"},
         "backbone": {
             "name_or_path": "llava-hf/llava-1.5-7b-hf",
             "max_instruction_tokens": 64,
-            "torch_dtype": "bfloat16",
+            "torch_dtype": "float32",
+            "freeze_vision_tower": True,
         },
-        "planner": {"hidden_size": 768, "depth": 12, "num_heads": 12, "guidance_scale": 1.5},
-        "generator": {"hidden_size": 768, "depth": 12, "num_heads": 12, "guidance_scale": 1.0},
+        "planner": {
+            "hidden_size": 768,
+            "depth": 12,
+            "num_heads": 12,
+            "guidance_scale": 1.5,
+            "repeated_diffusion_steps": 8,
+        },
+        "generator": {
+            "hidden_size": 768,
+            "depth": 12,
+            "num_heads": 12,
+            "guidance_scale": 1.0,
+            "repeated_diffusion_steps": 8,
+        },
         "planner_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
         "generator_attention": {"num_layers": 3, "num_heads": 8, "dropout": 0.1},
     },

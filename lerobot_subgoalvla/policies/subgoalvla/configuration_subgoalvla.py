@@ -14,8 +14,15 @@ rebuilds exactly the same model):
 - ``small``: a real pretrained LLaVA-architecture VLM of about 0.9B parameters
   (``llava-hf/llava-interleave-qwen-0.5b-hf``: SigLIP-so400m + Qwen1.5-0.5B) with DiT-S heads (384 x 12 x 6);
   trains on one 24 GB GPU with the vision tower frozen.
-- ``tiny``: a randomly initialised LLaVA-architecture model built from a config (no download), tiny DiTs and
-  a one-layer PCA; trains on a CPU. The tests and the offline default use it.
+- ``laptop``: a randomly initialised LLaVA-architecture model (no download) sized to *learn* CALVIN's fixture
+  tasks in about half an hour on 2 CPU cores: 80 px input (the tiny preset's 32 px shows a block as one pixel), a trainable vision
+  tower (a random one cannot see while frozen), small DiT heads and a recipe for short runs (heads 1e-3,
+  projector/LLM/vision 3e-4, 2 % warmup, cosine to 1 %). The README's main command uses it.
+- ``tiny``: the same kind of model at the smallest sizes (32 px, 32 wide); for the unit tests and smoke runs.
+
+Precision. ``small`` and ``paper`` train with bf16 *mixed precision* as the paper does: the weights (and AdamW's
+state) stay float32 and ``dtype=bfloat16`` makes ``lerobot-train`` run the forward pass under accelerate's bf16
+autocast. Storing the weights in bf16 instead would round most of the small updates of lr 2e-5 away.
 
 Where the paper is inconsistent this module follows the more specific statement and says so:
 
@@ -33,11 +40,12 @@ Where the paper is inconsistent this module follows the more specific statement 
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 from lerobot.configs import NormalizationMode, PreTrainedConfig
-from lerobot.optim import AdamWConfig, CosineDecayWithWarmupSchedulerConfig
+from lerobot.optim import AdamWConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_subgoalvla.policies.subgoalvla.config_components import (
@@ -47,6 +55,7 @@ from lerobot_subgoalvla.policies.subgoalvla.config_components import (
     DiTHeadConfig,
     require_positive,
 )
+from lerobot_subgoalvla.policies.subgoalvla.schedule import TwoStageCosineSchedulerConfig
 
 logger = logging.getLogger(__name__)
 
@@ -63,9 +72,11 @@ ACTION_KEY = ACTION
 #: The command that writes every key above from CALVIN's native files.
 CONVERTER_COMMAND = "subgoalvla-convert-calvin <CALVIN_DIR> --repo-id <id>"
 
-PRESETS = ("tiny", "small", "paper")
+PRESETS = ("tiny", "laptop", "small", "paper")
 FEATURE_AGGREGATIONS = ("proprio_xattn", "mean", "max", "attn")
 STAGES = ("stage1", "stage2")
+#: Attributes of SubgoalVLAConfig itself (not of a nested dataclass) that ``PRESET_VALUES[...]["recipe"]`` fills.
+RECIPE = "recipe"
 TORCH_DTYPES = ("float32", "bfloat16", "float16")
 
 
@@ -105,7 +116,8 @@ class SubgoalVLAConfig(PreTrainedConfig):
             (None: never). The policy counts steps in a saved buffer, so ``--resume=true`` continues in the
             right stage. With ``stage=stage2`` every step is stage II, so a stage I checkpoint that had a switch
             step can be continued with ``--policy.stage=stage2`` as it is.
-        optimizer_lr_projector: learning rate of the vision-to-language projector (1e-5, table 8).
+        optimizer_lr_projector: learning rate of the vision-to-language projector (1e-5, table 8), and of an
+            unfrozen vision tower.
         optimizer_lr_llm: learning rate of the LLM (2e-5, table 8).
         optimizer_lr_heads: learning rate of the PCA modules and both DiT heads (1e-4, table 8); also the
             scheduler's peak.
@@ -113,18 +125,20 @@ class SubgoalVLAConfig(PreTrainedConfig):
         optimizer_eps: AdamW epsilon.
         optimizer_weight_decay: AdamW weight decay (0.01, table 8).
         optimizer_grad_clip_norm: gradient-norm clipping threshold (not given in the paper).
-        scheduler_warmup_ratio: linear-warmup fraction of the schedule (0.05, table 8).
-        scheduler_decay_steps: length of the cosine schedule. LeRobot shrinks warmup and decay to ``--steps``
-            when ``--steps`` is smaller, so the large default makes warmup ``scheduler_warmup_ratio * steps``
-            and the cosine reach its floor at the last step.
-        scheduler_decay_lr: the heads' learning rate at the end of the cosine (3e-6, section 5); the other groups
-            decay by the same factor.
-        normalization_mapping: normalisation per feature type. ``observation.state_history`` and
-            ``observation.subgoal_trace`` are normalised with the ``observation.state`` statistics (see the
-            processor), never with their own.
+        scheduler_warmup_ratio: linear-warmup fraction of each training stage (0.05, table 8).
+        scheduler_decay_lr: the heads' learning rate at the end of each stage's cosine (3e-6, section 5); the other
+            groups decay by the same factor. A stage I -> II switch restarts warmup and cosine (``schedule.py``).
+        dtype: training precision read by ``lerobot-train``: ``bfloat16`` = accelerate bf16 mixed precision
+            (float32 weights, bf16 autocast), ``float32`` = full precision.
+        state_angle_dims: indices of the wrapping TCP Euler angles in ``observation.state`` (CALVIN: 3, 4, 5).
+        state_angle_home: the orientation those angles are measured from, radians (CALVIN's gripper pointing
+            down: roll pi); the model sees ``wrap(angle - home)``, continuous wherever the arm goes.
+        state_angle_scale: radians per normalised unit of those angles.
+        normalization_mapping: normalisation per feature type for LeRobot's normaliser. ``STATE`` must stay
+            ``IDENTITY``: the proprioception (state, history, trace) is normalised by the policy's own step with
+            the state's statistics and continuous angles (``proprio_normalization.py``).
     """
 
-    # Architecture preset ------------------------------------------------------------------------------------
     preset: str = "tiny"
     backbone: BackboneConfig = field(default_factory=BackboneConfig)
     planner_attention: CrossAttentionConfig = field(default_factory=CrossAttentionConfig)
@@ -132,37 +146,36 @@ class SubgoalVLAConfig(PreTrainedConfig):
     planner: DiTHeadConfig = field(default_factory=DiTHeadConfig)
     generator: DiTHeadConfig = field(default_factory=DiTHeadConfig)
 
-    # Inputs / outputs ---------------------------------------------------------------------------------------
     state_history_len: int = 15
     subgoal_trace_len: int = 8
     chunk_size: int = 15
     n_action_steps: int = 8
 
-    # Ablations (paper tables 3 and 4) -----------------------------------------------------------------------
     feature_aggregation: str = "proprio_xattn"
     aggregation_top_k: int = 32
     use_planner: bool = True
 
-    # Two-stage training (section 4.3) -----------------------------------------------------------------------
     stage: str = "stage1"
     stage2_start_step: int | None = None
 
-    # Training presets (appendix C, table 8) -----------------------------------------------------------------
-    optimizer_lr_projector: float = 1e-5
-    optimizer_lr_llm: float = 2e-5
-    optimizer_lr_heads: float = 1e-4
+    optimizer_lr_projector: float | None = None
+    optimizer_lr_llm: float | None = None
+    optimizer_lr_heads: float | None = None
     optimizer_betas: tuple[float, float] = (0.9, 0.999)
     optimizer_eps: float = 1e-8
     optimizer_weight_decay: float = 0.01
     optimizer_grad_clip_norm: float = 1.0
-    scheduler_warmup_ratio: float = 0.05
-    scheduler_decay_steps: int = 1_000_000
-    scheduler_decay_lr: float = 3e-6
+    scheduler_warmup_ratio: float | None = None
+    scheduler_decay_lr: float | None = None
+    dtype: str | None = None
+    state_angle_dims: tuple[int, ...] = (3, 4, 5)
+    state_angle_home: tuple[float, ...] = (math.pi, 0.0, 0.0)
+    state_angle_scale: float = 1.0
 
     normalization_mapping: dict[str, NormalizationMode] = field(
         default_factory=lambda: {
             "VISUAL": NormalizationMode.IDENTITY,
-            "STATE": NormalizationMode.MEAN_STD,
+            "STATE": NormalizationMode.IDENTITY,
             "ENV": NormalizationMode.IDENTITY,
             "ACTION": NormalizationMode.MIN_MAX,
         }
@@ -180,7 +193,7 @@ class SubgoalVLAConfig(PreTrainedConfig):
         values = PRESET_VALUES[self.preset]
         pretrained = self.backbone.name_or_path is not None
         for attribute, defaults in values.items():
-            sub = getattr(self, attribute)
+            sub = self if attribute == RECIPE else getattr(self, attribute)
             for name, value in defaults.items():
                 # A user-chosen pretrained backbone brings its own architecture: never add tiny dimensions.
                 if attribute == "backbone" and pretrained and name in sub.tiny_architecture_fields:
@@ -197,6 +210,18 @@ class SubgoalVLAConfig(PreTrainedConfig):
         _require_choice("feature_aggregation", self.feature_aggregation, FEATURE_AGGREGATIONS)
         _require_choice("stage", self.stage, STAGES)
         _require_choice("backbone.torch_dtype", self.backbone.torch_dtype, TORCH_DTYPES)
+        _require_choice("dtype", self.dtype, TORCH_DTYPES)
+        if self.normalization_mapping.get("STATE") != NormalizationMode.IDENTITY:
+            raise ValueError(
+                "--policy.normalization_mapping must keep STATE: IDENTITY; SubgoalVLA normalises the "
+                "proprioception itself (state statistics, continuous angles)"
+            )
+        if len(self.state_angle_dims) != len(self.state_angle_home):
+            raise ValueError(
+                f"--policy.state_angle_home needs one value per --policy.state_angle_dims entry "
+                f"({len(self.state_angle_dims)}), got {len(self.state_angle_home)}"
+            )
+        require_positive("state_angle_scale", self.state_angle_scale)
         for name in ("state_history_len", "subgoal_trace_len", "chunk_size", "n_action_steps"):
             require_positive(name, getattr(self, name))
         require_positive("aggregation_top_k", self.aggregation_top_k)
@@ -227,7 +252,6 @@ class SubgoalVLAConfig(PreTrainedConfig):
             raise ValueError(
                 f"--policy.scheduler_warmup_ratio must be in [0, 1), got {self.scheduler_warmup_ratio}"
             )
-        require_positive("scheduler_decay_steps", self.scheduler_decay_steps)
 
     def _validate_backbone(self) -> None:
         bb = self.backbone
@@ -357,13 +381,12 @@ class SubgoalVLAConfig(PreTrainedConfig):
             grad_clip_norm=self.optimizer_grad_clip_norm,
         )
 
-    def get_scheduler_preset(self) -> CosineDecayWithWarmupSchedulerConfig:
-        """Linear warmup over ``scheduler_warmup_ratio`` of the schedule, then cosine decay (appendix C)."""
-        return CosineDecayWithWarmupSchedulerConfig(
-            num_warmup_steps=int(self.scheduler_warmup_ratio * self.scheduler_decay_steps),
-            num_decay_steps=self.scheduler_decay_steps,
-            peak_lr=self.optimizer_lr_heads,
-            decay_lr=self.scheduler_decay_lr,
+    def get_scheduler_preset(self) -> TwoStageCosineSchedulerConfig:
+        """Linear warmup, then cosine decay (appendix C), restarted for stage II (``schedule.py``)."""
+        return TwoStageCosineSchedulerConfig(
+            warmup_ratio=self.scheduler_warmup_ratio,
+            final_ratio=self.scheduler_decay_lr / self.optimizer_lr_heads,
+            stage2_start_step=self.stage2_start_step if self.stage == "stage1" else None,
         )
 
     def stage_at(self, step: int) -> str:

@@ -24,7 +24,9 @@ Dimension legend: ``B`` batch, ``h`` history steps, ``M`` trace steps, ``p`` pro
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+from collections.abc import Iterator
 
 import torch
 from lerobot.configs import FeatureType, NormalizationMode
@@ -73,6 +75,19 @@ def _objective(head: DiTHeadConfig, target_normalization: NormalizationMode) -> 
         cond_dropout_prob=head.label_dropout,
         clip_sample_range=clip,
     )
+
+
+@contextlib.contextmanager
+def _eval_mode(*modules: nn.Module) -> Iterator[None]:
+    """Put ``modules`` in eval mode for the block and restore each one's previous mode."""
+    modes = [module.training for module in modules]
+    for module in modules:
+        module.eval()
+    try:
+        yield
+    finally:
+        for module, mode in zip(modules, modes, strict=True):
+            module.train(mode)
 
 
 def _dit(head: DiTHeadConfig, input_dim: int, cond_dim: int) -> DiT:
@@ -214,9 +229,13 @@ class SubgoalVLAModel(nn.Module):
         )
         if not sample_trace:
             return loss, None
-        sampled = self.planner_objective.sample(
-            self.planner, tuple(trace.shape), features.detach(), features_mask, generator=generator
-        )
+        # The generator must learn to follow the traces it will get at inference, so sample them as inference
+        # does: planner and its aggregator in eval mode (no dropout), no gradient.
+        with torch.no_grad(), _eval_mode(self.planner_aggregator, self.planner):
+            features, features_mask = self.planner_aggregator(history, hidden, mask)
+            sampled = self.planner_objective.sample(
+                self.planner, tuple(trace.shape), features, features_mask, generator=generator
+            )
         return loss, sampled
 
     @torch.no_grad()

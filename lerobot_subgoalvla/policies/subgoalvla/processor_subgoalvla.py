@@ -3,18 +3,14 @@
 Pre-processor (``policy_preprocessor``)::
 
     rename_observations_processor -> to_batch_processor -> subgoalvla_tokenizer_processor -> device_processor
-    -> subgoalvla_pack_state_sequences -> normalizer_processor -> subgoalvla_unpack_state_sequences
+    -> subgoalvla_proprio_normalizer -> normalizer_processor
 
 Post-processor (``policy_postprocessor``): ``unnormalizer_processor -> device_processor (cpu)``.
 
-Consistent proprioceptive normalisation. ``observation.state_history`` (h, p) and ``observation.subgoal_trace``
-(M, p) are sequences of ``observation.state`` vectors, so they must be normalised with the *state's* statistics:
-the policy builds the history at inference from normalised states (``StateHistoryBuffer``) and must see the same
-numbers as in training, and a predicted trace lives in the same space as the state queries. LeRobot would give each
-column its own pooled (p,) statistics instead. The pack step therefore stacks state, history and trace as rows of
-``observation.state`` (B, 1 + h + M, p) before LeRobot's own ``normalizer_processor`` (which broadcasts the (p,)
-statistics over rows) and the unpack step splits them again. The two steps hold no statistics, so the sharing holds
-by construction, also when ``lerobot-train --policy.path=...`` overrides the normaliser's statistics.
+Proprioception (``observation.state`` and its sequences ``observation.state_history`` / ``observation.subgoal_trace``)
+is normalised by our own step, with the state's statistics and the wrapping TCP angles as continuous offsets
+(``proprio_normalization.py``); LeRobot's ``normalizer_processor`` handles the action and leaves ``STATE``
+features alone (the config maps ``STATE`` to ``IDENTITY``).
 
 Images are left in [0, 1] (``VISUAL: IDENTITY``); the model resizes and normalises them for its vision tower.
 The instruction (``task``) is tokenised here with the backbone's tokenizer, LLaVA style (image placeholders first);
@@ -31,12 +27,11 @@ from typing import Any
 
 import torch
 from lerobot.configs import FeatureType, PipelineFeatureType, PolicyFeature
-from lerobot.lerobot_types import EnvTransition, RobotObservation, TransitionKey
+from lerobot.lerobot_types import RobotObservation, TransitionKey
 from lerobot.processor import (
     ObservationProcessorStep,
     PolicyAction,
     PolicyProcessorPipeline,
-    ProcessorStep,
     ProcessorStepRegistry,
     make_default_policy_processor_steps,
     make_policy_processor_pipelines,
@@ -49,17 +44,8 @@ from lerobot_subgoalvla.policies.subgoalvla.backbone import (
     load_tokenizer,
     tokenize_instructions,
 )
-from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
-    STATE_HISTORY_KEY,
-    STATE_KEY,
-    SUBGOAL_TRACE_KEY,
-    SubgoalVLAConfig,
-)
-
-#: Complementary-data key in which the pack step records which rows it stacked (read and removed by unpack).
-PACKED_ROWS_KEY = "subgoalvla_packed_state_rows"
-#: Proprioceptive sequences normalised with the ``observation.state`` statistics, in packing order.
-STATE_SEQUENCE_KEYS = (STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY)
+from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import STATE_KEY, SubgoalVLAConfig
+from lerobot_subgoalvla.policies.subgoalvla.proprio_normalization import ProprioNormalizerProcessorStep
 
 
 def tiny_dims_of(config: SubgoalVLAConfig) -> dict[str, int] | None:
@@ -146,73 +132,6 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
         return features
 
 
-@ProcessorStepRegistry.register(name="subgoalvla_pack_state_sequences")
-@dataclass
-class PackStateSequencesProcessorStep(ProcessorStep):
-    """Stack ``observation.state`` (B, p), the history (B, h, p) and the trace (B, M, p) into (B, 1+h+M, p).
-
-    Only the present sequences are stacked (the env provides the state alone); the stacked row counts are recorded
-    in the transition's complementary data for :class:`UnpackStateSequencesProcessorStep`.
-    """
-
-    def __call__(self, transition: EnvTransition) -> EnvTransition:
-        observation = transition.get(TransitionKey.OBSERVATION)
-        if not observation or STATE_KEY not in observation:
-            return transition
-        present = [key for key in STATE_SEQUENCE_KEYS if key in observation]
-        if not present:
-            return transition
-        observation = dict(observation)
-        state = observation[STATE_KEY]
-        sequences = [torch.as_tensor(observation.pop(key)) for key in present]
-        # to_batch_processor batches 1-D states but not these 2-D columns: batch an unbatched (L, p) here
-        sequences = [seq.unsqueeze(0) if seq.ndim == state.ndim else seq for seq in sequences]
-        parts = [state.unsqueeze(-2), *sequences]  # (B, 1, p), (B, h, p), (B, M, p)
-        rows = [[STATE_KEY, 1]] + [
-            [key, int(part.shape[-2])] for key, part in zip(present, parts[1:], strict=True)
-        ]
-        observation[STATE_KEY] = torch.cat(parts, dim=-2)  # (B, 1 + h + M, p)
-        complementary = dict(transition.get(TransitionKey.COMPLEMENTARY_DATA) or {})
-        complementary[PACKED_ROWS_KEY] = rows
-        new_transition = dict(transition)
-        new_transition[TransitionKey.OBSERVATION] = observation
-        new_transition[TransitionKey.COMPLEMENTARY_DATA] = complementary
-        return new_transition
-
-    def transform_features(
-        self, features: dict[PipelineFeatureType, dict[str, PolicyFeature]]
-    ) -> dict[PipelineFeatureType, dict[str, PolicyFeature]]:
-        return features  # packing is undone by the unpack step: the pipeline's features are unchanged
-
-
-@ProcessorStepRegistry.register(name="subgoalvla_unpack_state_sequences")
-@dataclass
-class UnpackStateSequencesProcessorStep(ProcessorStep):
-    """Split the normalised (B, 1+h+M, p) ``observation.state`` back into state, history and trace."""
-
-    def __call__(self, transition: EnvTransition) -> EnvTransition:
-        complementary = transition.get(TransitionKey.COMPLEMENTARY_DATA) or {}
-        if PACKED_ROWS_KEY not in complementary:
-            return transition
-        complementary = dict(complementary)
-        rows = complementary.pop(PACKED_ROWS_KEY)
-        observation = dict(transition[TransitionKey.OBSERVATION])
-        parts = torch.split(observation[STATE_KEY], [count for _, count in rows], dim=-2)
-        for (key, _), part in zip(rows, parts, strict=True):
-            observation[key] = (
-                part.squeeze(-2) if key == STATE_KEY else part
-            )  # (B, p) / (B, h, p) / (B, M, p)
-        new_transition = dict(transition)
-        new_transition[TransitionKey.OBSERVATION] = observation
-        new_transition[TransitionKey.COMPLEMENTARY_DATA] = complementary
-        return new_transition
-
-    def transform_features(
-        self, features: dict[PipelineFeatureType, dict[str, PolicyFeature]]
-    ) -> dict[PipelineFeatureType, dict[str, PolicyFeature]]:
-        return features
-
-
 def make_subgoalvla_pre_post_processors(
     config: SubgoalVLAConfig,
     dataset_stats: dict[str, dict[str, torch.Tensor]] | None = None,
@@ -225,8 +144,8 @@ def make_subgoalvla_pre_post_processors(
 
     Args:
         config: the policy config (features, normalisation mapping, backbone).
-        dataset_stats: the dataset's statistics; only ``observation.state``'s are used for the proprioceptive
-            sequences (through packing), the history/trace columns' own statistics never are.
+        dataset_stats: the dataset's statistics; ``observation.state``'s normalise state, history and trace
+            (``ProprioNormalizerProcessorStep``), the history/trace columns' own statistics are never used.
         dataset_meta: the training dataset's metadata, when LeRobot passes it: its features are checked against
             the data contract (one-line error naming the missing feature and the converter).
 
@@ -247,9 +166,13 @@ def make_subgoalvla_pre_post_processors(
             steps.add_batch_dim,
             tokenizer,
             steps.to_device,
-            PackStateSequencesProcessorStep(),
+            ProprioNormalizerProcessorStep.from_stats(
+                (dataset_stats or {}).get(STATE_KEY),
+                config.state_angle_dims,
+                config.state_angle_home,
+                config.state_angle_scale,
+            ),
             steps.normalize,
-            UnpackStateSequencesProcessorStep(),
         ],
         output_steps=[steps.unnormalize, steps.to_cpu],
     )

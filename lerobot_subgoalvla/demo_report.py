@@ -1,0 +1,223 @@
+"""``subgoalvla-demo-report``: one page that shows what a training run learned (the main command's last stage).
+
+Reads what the earlier stages left on disk and writes, into ``--output-dir``:
+
+- ``README.md``: success per single task (with a 95 % Wilson interval), their mean, the LH-1..5 table and average
+  length of the chains, training time and throughput, and links to the pictures and rollout videos;
+- ``loss_curves.png``: planner and generator loss per logged step from the ``lerobot-train`` log, with the
+  stage I -> II switch marked;
+- ``task_success.png``: success per task with its interval;
+- ``summary.json``: the same numbers, machine-readable.
+
+Inputs: ``--train-log`` (the captured stdout/stderr of ``lerobot-train``; LeRobot logs one ``step:... loss:...``
+line every ``--log_freq`` steps) and ``--eval-dir`` holding one ``lerobot-eval`` output folder per task
+(``<task>/eval_info.json``) and ``lh_mtlc/results.jsonl`` from ``--env.results_path``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import logging
+import math
+import re
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
+
+logger = logging.getLogger(__name__)
+
+LH_MTLC_DIR = "lh_mtlc"
+_LOG_FIELD = re.compile(r"(\w+):([-+0-9.eE]+[KMB]?)(?=\s|$)")
+_SUFFIX = {"K": 1e3, "M": 1e6, "B": 1e9}
+
+
+def _number(text: str) -> float:
+    scale = _SUFFIX.get(text[-1], 1.0)
+    return float(text[:-1] if scale != 1.0 else text) * scale
+
+
+def parse_train_log(path: Path) -> list[dict[str, float]]:
+    """The metrics of every ``step:...`` line LeRobot logged (steps may be rounded, e.g. ``1K``)."""
+    records = []
+    for line in Path(path).read_text(errors="replace").splitlines():
+        start = line.find(" step:")
+        if start < 0:
+            continue
+        fields = {key: _number(value) for key, value in _LOG_FIELD.findall(line[start:])}
+        if "step" in fields and "loss" in fields:
+            records.append(fields)
+    return records
+
+
+def wilson_interval(successes: int, total: int, z: float = 1.96) -> tuple[float, float]:
+    """The 95 % Wilson score interval of a success rate (sensible also at 0/n and n/n)."""
+    if total == 0:
+        return 0.0, 1.0
+    p = successes / total
+    centre = (p + z * z / (2 * total)) / (1 + z * z / total)
+    half = z * math.sqrt(p * (1 - p) / total + z * z / (4 * total * total)) / (1 + z * z / total)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def read_task_results(eval_dir: Path) -> dict[str, dict[str, Any]]:
+    """Task -> successes/episodes/interval/videos from each ``<task>/eval_info.json`` (CALVIN task order)."""
+    results = {}
+    for task in TASK_NAMES:
+        path = Path(eval_dir) / task / "eval_info.json"
+        if not path.is_file():
+            continue
+        info = json.loads(path.read_text())
+        successes = [bool(s) for entry in info["per_task"] for s in entry["metrics"]["successes"]]
+        low, high = wilson_interval(sum(successes), len(successes))
+        results[task] = {
+            "successes": sum(successes),
+            "episodes": len(successes),
+            "rate": sum(successes) / len(successes),
+            "interval_95": [low, high],
+            "videos": [str(Path(p)) for p in info.get("overall", {}).get("video_paths", [])],
+        }
+    return results
+
+
+def _save(fig: Any, path: Path) -> None:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png")
+    path.write_bytes(buffer.getvalue())
+
+
+def plot_losses(records: Sequence[dict[str, float]], path: Path) -> None:
+    """Planner and generator loss against the logged step; the stage II steps are shaded."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8, 4), dpi=100, layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    steps = [r["step"] for r in records]
+    for key, colour in (("planner_loss", "tab:purple"), ("generator_loss", "tab:orange")):
+        if any(key in r for r in records):
+            ax.plot(steps, [r.get(key, math.nan) for r in records], label=key.replace("_", " "), color=colour)
+    stage2 = [r["step"] for r in records if r.get("stage") == 2]
+    if stage2:
+        ax.axvspan(min(stage2), max(stage2), color="grey", alpha=0.15, label="stage II")
+    ax.set(xlabel="optimizer step", ylabel="diffusion loss", yscale="log", title="training losses")
+    ax.legend()
+    _save(fig, path)
+
+
+def plot_task_success(tasks: dict[str, dict[str, Any]], path: Path) -> None:
+    """Horizontal bars of success per task with the 95 % interval as error bars."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8, 0.45 * len(tasks) + 1.2), dpi=100, layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    names = list(tasks)
+    rates = [100 * tasks[t]["rate"] for t in names]
+    errors = [[100 * (tasks[t]["rate"] - tasks[t]["interval_95"][0]) for t in names],
+              [100 * (tasks[t]["interval_95"][1] - tasks[t]["rate"]) for t in names]]  # fmt: skip
+    ax.barh(names, rates, xerr=errors, color="tab:green", capsize=3)
+    ax.invert_yaxis()
+    ax.set(xlim=(0, 100), xlabel="success rate (%), 95 % interval", title="single tasks, closed loop")
+    _save(fig, path)
+
+
+def _chains(eval_dir: Path) -> dict[str, Any] | None:
+    from lerobot_subgoalvla.envs.calvin.report import summarize
+    from lerobot_subgoalvla.envs.calvin.results import read_episode_results
+
+    path = Path(eval_dir) / LH_MTLC_DIR / "results.jsonl"
+    if not path.is_file():
+        return None
+    return summarize(read_episode_results(path)).to_json()
+
+
+def _markdown(summary: dict[str, Any]) -> str:
+    lines = ["# SubgoalVLA demo report", ""]
+    tasks = summary["tasks"]
+    if tasks:
+        lines += [f"Mean single-task success: **{100 * summary['mean_task_success']:.1f} %** over {len(tasks)} tasks.",
+                  "", "| task | success | 95 % interval | first video |", "| --- | --- | --- | --- |"]  # fmt: skip
+        for task, r in tasks.items():
+            low, high = r["interval_95"]
+            video = f"[mp4]({r['videos'][0]})" if r["videos"] else ""
+            lines.append(
+                f"| {task} | {r['successes']}/{r['episodes']} | {100 * low:.0f}-{100 * high:.0f} % | {video} |"
+            )
+        lines += ["", "![success per task](task_success.png)", ""]
+    chains = summary["lh_mtlc"]
+    if chains:
+        rates = " | ".join(f"{100 * chains['chain_sr'][str(k)]:.1f} %" for k in range(1, 6))
+        lines += [f"LH-MTLC over {chains['num_chains']} chains: average length **{chains['avg_seq_len']:.2f}**", "",
+                  "| LH-1 | LH-2 | LH-3 | LH-4 | LH-5 |", "| --- | --- | --- | --- | --- |", f"| {rates} |", ""]  # fmt: skip
+    train = summary["training"]
+    if train:
+        lines += [f"Training: {train['steps']:.0f} steps, last planner loss {train['planner_loss']:.4f}, "
+                  f"generator loss {train['generator_loss']:.4f}, {train['samples_per_s']:.0f} samples/s.", "",
+                  "![loss curves](loss_curves.png)", ""]  # fmt: skip
+    lines += ["Predicted subgoal traces (ghost robots) over the executed rollout: ![traces](traces.png)", ""]
+    return "\n".join(lines)
+
+
+def build_report(train_log: Path | None, eval_dir: Path, output_dir: Path) -> dict[str, Any]:
+    """Write README.md, summary.json and the PNGs into ``output_dir``; returns the summary."""
+    output_dir.mkdir(parents=True, exist_ok=True)
+    tasks = read_task_results(eval_dir)
+    records = parse_train_log(train_log) if train_log is not None else []
+    last = records[-1] if records else None
+    training = None
+    if last is not None:
+        training = {
+            "steps": last["step"],
+            "planner_loss": last.get("planner_loss", math.nan),
+            "generator_loss": last.get("generator_loss", math.nan),
+            "samples_per_s": last.get("smp/s", last.get("smp", math.nan)),
+        }
+        plot_losses(records, output_dir / "loss_curves.png")
+    if tasks:
+        plot_task_success(tasks, output_dir / "task_success.png")
+    summary = {
+        "tasks": tasks,
+        "mean_task_success": sum(r["rate"] for r in tasks.values()) / len(tasks) if tasks else None,
+        "lh_mtlc": _chains(eval_dir),
+        "training": training,
+    }
+    (output_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    (output_dir / "README.md").write_text(_markdown(summary))
+    return summary
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``subgoalvla-demo-report``."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    parser = argparse.ArgumentParser(prog="subgoalvla-demo-report", description=__doc__.splitlines()[0])
+    parser.add_argument("--train-log", type=Path, default=None, help="captured output of lerobot-train")
+    parser.add_argument(
+        "--eval-dir", type=Path, required=True, help="folder of <task>/eval_info.json and lh_mtlc/"
+    )
+    parser.add_argument("--output-dir", type=Path, required=True, help="where README.md and the PNGs go")
+    args = parser.parse_args(argv)
+    for flag, path in (("--train-log", args.train_log), ("--eval-dir", args.eval_dir)):
+        if path is not None and not path.exists():
+            logger.error("%s %s does not exist; run the earlier demo stages first", flag, path)
+            return 1
+    summary = build_report(args.train_log, args.eval_dir, args.output_dir)
+    mean = summary["mean_task_success"]
+    chains = summary["lh_mtlc"]
+    logger.info(
+        "mean single-task success %s; LH-MTLC average length %s; report %s",
+        "n/a" if mean is None else f"{100 * mean:.1f} %",
+        "n/a" if chains is None else f"{chains['avg_seq_len']:.2f} over {chains['num_chains']} chains",
+        args.output_dir / "README.md",
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
