@@ -68,7 +68,7 @@ for task in "${FIXTURE_TASKS[@]}"; do
     if [ ! -f "$OUT/eval/$task/eval_info.json" ]; then
         rm -rf "$OUT/eval/$task"
         lerobot-eval --policy.path="$CKPT" --env.type=calvin --env.task="$task" --eval.n_episodes="$EPISODES" \
-            --eval.batch_size=1 --eval.use_async_envs=false --output_dir="$OUT/eval/$task" --seed=1000 \
+            --eval.batch_size=2 --eval.use_async_envs=true --output_dir="$OUT/eval/$task" --seed=1000 \
             2>&1 | grep -E "pc_success|Error|error" || true
         [ -f "$OUT/eval/$task/eval_info.json" ] || { echo "demo.sh: lerobot-eval of $task failed" >&2; exit 1; }
     fi

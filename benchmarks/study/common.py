@@ -1,0 +1,192 @@
+"""Shared plumbing of the study (docs/RESULTS.md): data, training, evaluation and the results file.
+
+Every table of the study is a list of *runs*; a run is (method, setting, task, seed) with a training command, an
+evaluation and one record per evaluated task in ``benchmarks/study/results.json``. Everything goes through the
+commands a user runs (``subgoalvla-generate-calvin``, ``subgoalvla-convert-calvin``, ``lerobot-train``,
+``lerobot-eval``) in subprocesses, with one thread each (``OMP_NUM_THREADS=1``: 2-core machines oversubscribe
+otherwise). A run whose records are already in the results file is skipped, a finished dataset or checkpoint is
+reused, so an interrupted study resumes where it stopped; records are appended atomically.
+
+Record keys (the issue's contract): ``method``, ``setting`` (single_task | multi_task | lh_mtlc), ``task``,
+``seed``, ``episodes``, ``successes`` (+ ``avg_len`` for lh_mtlc), ``train_samples``, ``train_seconds``,
+``scene``; plus ``samples_per_s``, ``latency_ms_per_step`` (the evaluation's wall time per env step, policy and
+simulator together), ``machine`` and the exact ``train_command``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import platform
+import shlex
+import subprocess
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+logger = logging.getLogger("study")
+
+STUDY_DIR = Path(__file__).resolve().parent
+RESULTS_PATH = STUDY_DIR / "results.json"
+FIXTURE_TASKS = ("open_drawer", "close_drawer", "move_slider_left", "move_slider_right",
+                 "turn_on_led", "turn_off_led", "turn_on_lightbulb", "turn_off_lightbulb")  # fmt: skip
+#: Evaluation seeds start here; the generator's data seeds are small integers, so the start states differ.
+EVAL_SEED = 1000
+SCENE = "procedural"
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1",
+            "MPLBACKEND": "Agg"}  # fmt: skip
+
+
+def run(command: Sequence[str], log_path: Path) -> float:
+    """Run ``command`` with its output in ``log_path``; returns the wall time. Raises on a non-zero exit."""
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    logger.info("$ %s   (log: %s)", shlex.join(command), log_path)
+    start = time.perf_counter()
+    with log_path.open("a") as log:
+        code = subprocess.call(list(command), stdout=log, stderr=subprocess.STDOUT, env=_env())
+    if code != 0:
+        raise RuntimeError(f"{command[0]} failed with exit {code}; see {log_path}")
+    return time.perf_counter() - start
+
+
+def machine() -> str:
+    """One line naming the machine the figures were measured on."""
+    return f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
+
+
+@dataclass(frozen=True)
+class DataSpec:
+    """A generated + converted dataset: which tasks, how many attempts, image sizes."""
+
+    name: str
+    tasks: tuple[str, ...]
+    num_tasks: int
+    static_size: int = 200
+    gripper_size: int = 84
+    seed: int = 0
+
+    def prepare(self, work: Path, workers: int = 2) -> Path:
+        """Generate and convert (each step skipped when done); returns the dataset root."""
+        native, root = work / "data" / f"{self.name}_native", work / "data" / self.name
+        if not (native / "training").is_dir():
+            run(["subgoalvla-generate-calvin", "--output", str(native), "--num-tasks", str(self.num_tasks),
+                 "--seed", str(self.seed), "--tasks-per-segment", "4", "--workers", str(workers),
+                 "--tasks", ",".join(self.tasks), "--static-size", str(self.static_size),
+                 "--gripper-size", str(self.gripper_size)], work / "logs" / f"{self.name}_generate.log")  # fmt: skip
+        if not root.is_dir():
+            resume = ["--resume"] if root.with_name(root.name + ".partial").is_dir() else []
+            run(["subgoalvla-convert-calvin", str(native), "--repo-id", f"study/{self.name}", "--root", str(root),
+                 "--workers", str(workers), *resume], work / "logs" / f"{self.name}_convert.log")  # fmt: skip
+        return root
+
+
+@dataclass(frozen=True)
+class Method:
+    """A policy as trained by ``lerobot-train``: its type and the flags that configure it."""
+
+    name: str
+    policy_flags: tuple[str, ...]
+    batch_size: int = 32
+
+
+@dataclass
+class RunSpec:
+    """One training run and the tasks it is evaluated on."""
+
+    method: Method
+    setting: str
+    data: DataSpec
+    eval_tasks: tuple[str, ...]
+    seed: int
+    steps: int
+    episodes: int
+    extra_train_flags: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def run_name(self) -> str:
+        return f"{self.setting}-{self.method.name}-{self.data.name}-s{self.seed}"
+
+
+def load_records(path: Path = RESULTS_PATH) -> list[dict]:
+    return json.loads(path.read_text()) if path.is_file() else []
+
+
+def append_records(records: list[dict], path: Path = RESULTS_PATH) -> None:
+    """Add ``records`` to the results file (written to a temporary file, then renamed)."""
+    merged = load_records(path) + records
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(merged, indent=1) + "\n")
+    tmp.replace(path)
+
+
+def _done(spec: RunSpec, records: list[dict]) -> bool:
+    keys = {(r["method"], r["setting"], r["task"], r["seed"]) for r in records}
+    return all((spec.method.name, spec.setting, task, spec.seed) in keys for task in spec.eval_tasks)
+
+
+def _last_train_metrics(log_path: Path) -> dict[str, float]:
+    from lerobot_subgoalvla.demo_report import parse_train_log
+
+    records = parse_train_log(log_path)
+    return records[-1] if records else {}
+
+
+def execute(spec: RunSpec, work: Path) -> list[dict]:
+    """Train (or reuse the checkpoint), evaluate every task, append and return the records."""
+    if _done(spec, load_records()):
+        logger.info("%s: already in %s, skipped", spec.run_name, RESULTS_PATH)
+        return []
+    root = spec.data.prepare(work)
+    out = work / "runs" / spec.run_name
+    checkpoint = out / "train" / "checkpoints" / "last" / "pretrained_model"
+    train_log = out / "train.log"
+    timing = out / "train_seconds.txt"
+    train_command = ["lerobot-train", *spec.method.policy_flags, "--policy.push_to_hub=false",
+                     f"--dataset.repo_id=study/{spec.data.name}", f"--dataset.root={root}",
+                     "--dataset.video_backend=pyav", f"--output_dir={out / 'train'}", f"--steps={spec.steps}",
+                     f"--batch_size={spec.method.batch_size}", "--num_workers=1", "--log_freq=50",
+                     f"--save_freq={spec.steps}", f"--seed={spec.seed}", "--wandb.enable=false",
+                     *spec.extra_train_flags]  # fmt: skip
+    if not timing.is_file():
+        if (out / "train").exists():
+            import shutil
+
+            shutil.rmtree(out / "train")  # an interrupted run restarts: its seconds would not add up
+        timing.parent.mkdir(parents=True, exist_ok=True)
+        timing.write_text(f"{run(train_command, train_log):.1f}\n")
+    metrics = _last_train_metrics(train_log)
+    records = []
+    for task in spec.eval_tasks:
+        records.append(
+            _evaluate(spec, task, checkpoint, out, float(timing.read_text()), metrics, train_command)
+        )
+    append_records(records)
+    return records
+
+
+def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path, train_seconds: float,
+              metrics: dict[str, float], train_command: list[str]) -> dict:  # fmt: skip
+    eval_dir = out / "eval" / task
+    size_flags = [f"--env.static_image_size={spec.data.static_size}",
+                  f"--env.gripper_image_size={spec.data.gripper_size}"]  # fmt: skip
+    if not (eval_dir / "eval_info.json").is_file():
+        run(["lerobot-eval", f"--policy.path={checkpoint}", "--env.type=calvin", f"--env.task={task}", *size_flags,
+             f"--eval.n_episodes={spec.episodes}", "--eval.batch_size=1", "--eval.use_async_envs=false",
+             f"--output_dir={eval_dir}", f"--seed={EVAL_SEED}"], out / f"eval_{task}.log")  # fmt: skip
+    info = json.loads((eval_dir / "eval_info.json").read_text())
+    successes = [bool(s) for entry in info["per_task"] for s in entry["metrics"]["successes"]]
+    steps = sum(len(entry["metrics"].get("sum_rewards", [])) for entry in info["per_task"])
+    eval_seconds = info["overall"].get("eval_s", float("nan"))
+    return {
+        "method": spec.method.name, "setting": spec.setting, "task": task, "seed": spec.seed,
+        "episodes": len(successes), "successes": sum(successes),
+        "train_samples": spec.steps * spec.method.batch_size, "train_seconds": round(train_seconds, 1),
+        "samples_per_s": metrics.get("smp/s"), "eval_seconds_per_episode": info["overall"].get("eval_ep_s"),
+        "eval_seconds": eval_seconds, "scene": SCENE, "machine": machine(),
+        "train_command": shlex.join(train_command), "episodes_evaluated": steps,
+    }  # fmt: skip

@@ -1,0 +1,99 @@
+"""Training throughput of ``lerobot-train``: our presets beside LeRobot's diffusion and ACT, same data and machine.
+
+Runs ``lerobot-train`` for ``--steps`` steps per policy on one dataset (every policy in a fresh process, one after
+the other, nothing else started by the benchmark) and reads LeRobot's own log lines: ``updt_s`` (forward, backward,
+optimizer step) and ``data_s`` (time the loop waited for the next batch). The first logged interval (start-up,
+first batches) is dropped; the table gives medians over the rest, and samples/s = batch / (updt_s + data_s).
+
+Usage::
+
+    python benchmarks/train_throughput.py --dataset-root outputs/demo/dataset --repo-id local/calvin_demo
+    python benchmarks/train_throughput.py ... --policies tiny laptop --threads 1 2 --workers 0 1 2
+
+The dataset needs cameras of one shape for ``diffusion`` (LeRobot's requirement); it is skipped otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from lerobot_subgoalvla.demo_report import parse_train_log  # noqa: E402
+
+POLICIES = {
+    "tiny": ["--policy.type=subgoalvla", "--policy.preset=tiny"],
+    "laptop": ["--policy.type=subgoalvla", "--policy.preset=laptop"],
+    "diffusion": ["--policy.type=diffusion", "--policy.pretrained_backbone_weights=null", "--policy.crop_shape=null"],
+    "act": ["--policy.type=act", "--policy.pretrained_backbone_weights=null"],
+}  # fmt: skip
+
+
+def cameras_share_a_shape(root: Path) -> bool:
+    features = json.loads((root / "meta" / "info.json").read_text())["features"]
+    shapes = {tuple(f["shape"]) for f in features.values() if f["dtype"] in ("video", "image")}
+    return len(shapes) == 1
+
+
+def measure(
+    policy: str, root: Path, repo_id: str, steps: int, batch: int, threads: int, workers: int
+) -> dict:
+    with tempfile.TemporaryDirectory() as out:
+        log = Path(out) / "train.log"
+        command = ["lerobot-train", *POLICIES[policy], "--policy.push_to_hub=false", "--policy.device=cpu",
+                   f"--dataset.repo_id={repo_id}", f"--dataset.root={root}", "--dataset.video_backend=pyav",
+                   f"--output_dir={Path(out) / 'run'}", f"--steps={steps}", f"--batch_size={batch}",
+                   f"--num_workers={workers}", f"--log_freq={max(1, steps // 6)}", f"--save_freq={10 * steps}",
+                   "--save_checkpoint=false", "--wandb.enable=false"]  # fmt: skip
+        env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads),
+               "HF_HUB_OFFLINE": "1"}  # fmt: skip
+        with log.open("w") as handle:
+            code = subprocess.call(command, stdout=handle, stderr=subprocess.STDOUT, env=env)
+        records = parse_train_log(log)[1:]
+        if code != 0 or not records:
+            tail = log.read_text(errors="replace").splitlines()[-3:]
+            return {"policy": policy, "error": " | ".join(tail)}
+    update = statistics.median(r["updt_s"] for r in records)
+    data = statistics.median(r["data_s"] for r in records)
+    return {"policy": policy, "threads": threads, "workers": workers, "batch": batch, "updt_s": update,
+            "data_s": data, "samples_per_s": batch / (update + data)}  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dataset-root", type=Path, required=True)
+    parser.add_argument("--repo-id", required=True)
+    parser.add_argument("--policies", nargs="+", default=list(POLICIES), choices=list(POLICIES))
+    parser.add_argument("--steps", type=int, default=120)
+    parser.add_argument("--batch-size", type=int, default=32)
+    parser.add_argument("--threads", nargs="+", type=int, default=[1])
+    parser.add_argument("--workers", nargs="+", type=int, default=[1])
+    args = parser.parse_args()
+    same_shape = cameras_share_a_shape(args.dataset_root)
+    print(
+        f"{'policy':<10} {'threads':>7} {'workers':>7} {'batch':>5} {'updt_s':>7} {'data_s':>7} {'samples/s':>9}"
+    )
+    for policy in args.policies:
+        if policy == "diffusion" and not same_shape:
+            print(f"{policy:<10} skipped: LeRobot's diffusion needs all cameras of one shape")
+            continue
+        for threads in args.threads:
+            for workers in args.workers:
+                r = measure(
+                    policy, args.dataset_root, args.repo_id, args.steps, args.batch_size, threads, workers
+                )
+                if "error" in r:
+                    print(f"{policy:<10} failed: {r['error']}")
+                    continue
+                print(f"{policy:<10} {threads:>7} {workers:>7} {r['batch']:>5} {r['updt_s']:>7.3f} "
+                      f"{r['data_s']:>7.3f} {r['samples_per_s']:>9.1f}")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
