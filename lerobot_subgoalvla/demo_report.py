@@ -21,6 +21,7 @@ import io
 import json
 import logging
 import math
+import os
 import re
 import sys
 from collections.abc import Sequence
@@ -32,7 +33,7 @@ from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
 logger = logging.getLogger(__name__)
 
 LH_MTLC_DIR = "lh_mtlc"
-_LOG_FIELD = re.compile(r"(\w+):([-+0-9.eE]+[KMB]?)(?=\s|$)")
+_LOG_FIELD = re.compile(r"([\w/]+):([-+0-9.eE]+[KMB]?)(?=\s|$)")
 _SUFFIX = {"K": 1e3, "M": 1e6, "B": 1e9}
 
 
@@ -79,7 +80,7 @@ def read_task_results(eval_dir: Path) -> dict[str, dict[str, Any]]:
             "episodes": len(successes),
             "rate": sum(successes) / len(successes),
             "interval_95": [low, high],
-            "videos": [str(Path(p)) for p in info.get("overall", {}).get("video_paths", [])],
+            "videos": [str(p) for p in info.get("overall", {}).get("video_paths", [])],
         }
     return results
 
@@ -138,7 +139,7 @@ def _chains(eval_dir: Path) -> dict[str, Any] | None:
     return summarize(read_episode_results(path)).to_json()
 
 
-def _markdown(summary: dict[str, Any]) -> str:
+def _markdown(summary: dict[str, Any], output_dir: Path) -> str:
     lines = ["# SubgoalVLA demo report", ""]
     tasks = summary["tasks"]
     if tasks:
@@ -146,7 +147,7 @@ def _markdown(summary: dict[str, Any]) -> str:
                   "", "| task | success | 95 % interval | first video |", "| --- | --- | --- | --- |"]  # fmt: skip
         for task, r in tasks.items():
             low, high = r["interval_95"]
-            video = f"[mp4]({r['videos'][0]})" if r["videos"] else ""
+            video = f"[mp4]({os.path.relpath(r['videos'][0], output_dir)})" if r["videos"] else ""
             lines.append(
                 f"| {task} | {r['successes']}/{r['episodes']} | {100 * low:.0f}-{100 * high:.0f} % | {video} |"
             )
@@ -177,7 +178,7 @@ def build_report(train_log: Path | None, eval_dir: Path, output_dir: Path) -> di
             "steps": last["step"],
             "planner_loss": last.get("planner_loss", math.nan),
             "generator_loss": last.get("generator_loss", math.nan),
-            "samples_per_s": last.get("smp/s", last.get("smp", math.nan)),
+            "samples_per_s": last.get("smp/s", math.nan),
         }
         plot_losses(records, output_dir / "loss_curves.png")
     if tasks:
@@ -189,7 +190,7 @@ def build_report(train_log: Path | None, eval_dir: Path, output_dir: Path) -> di
         "training": training,
     }
     (output_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-    (output_dir / "README.md").write_text(_markdown(summary))
+    (output_dir / "README.md").write_text(_markdown(summary, output_dir))
     return summary
 
 

@@ -21,7 +21,7 @@ export HF_HUB_OFFLINE=1 MPLBACKEND=Agg OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" M
 FIXTURE_TASKS=(open_drawer close_drawer move_slider_left move_slider_right turn_on_led turn_off_led
     turn_on_lightbulb turn_off_lightbulb)
 case "${DEMO_PROFILE:-cpu}" in
-    cpu) PRESET=laptop; TASKS=240; STEPS=3000; BATCH=32; EPISODES=10; CHAINS=20; DEVICE=cpu ;;
+    cpu) PRESET=laptop; TASKS=240; STEPS=2500; BATCH=32; EPISODES=10; CHAINS=20; DEVICE=cpu ;;
     gpu) PRESET=small; TASKS=2400; STEPS=30000; BATCH=32; EPISODES=20; CHAINS=100; DEVICE=cuda ;;
     *) echo "demo.sh: DEMO_PROFILE=${DEMO_PROFILE} is not valid; use cpu or gpu" >&2; exit 2 ;;
 esac
@@ -67,23 +67,27 @@ stage "4/5 evaluate: ${#FIXTURE_TASKS[@]} fixture tasks x $EPISODES episodes, th
 for task in "${FIXTURE_TASKS[@]}"; do
     if [ ! -f "$OUT/eval/$task/eval_info.json" ]; then
         rm -rf "$OUT/eval/$task"
+        mkdir -p "$OUT/eval"
         lerobot-eval --policy.path="$CKPT" --env.type=calvin --env.task="$task" --eval.n_episodes="$EPISODES" \
             --eval.batch_size=2 --eval.use_async_envs=true --output_dir="$OUT/eval/$task" --seed=1000 \
-            2>&1 | grep -E "pc_success|Error|error" || true
-        [ -f "$OUT/eval/$task/eval_info.json" ] || { echo "demo.sh: lerobot-eval of $task failed" >&2; exit 1; }
+            > "$OUT/eval/$task.log" 2>&1 || { tail -5 "$OUT/eval/$task.log" >&2; exit 1; }
+        python -c "import json,sys; o=json.load(open(sys.argv[1]))['overall']; print(f'   {sys.argv[2]}: {o[\"pc_success\"]:.0f} % of {o[\"n_episodes\"]} episodes')" \
+            "$OUT/eval/$task/eval_info.json" "$task"
     fi
 done
 if [ ! -f "$OUT/eval/lh_mtlc/eval_info.json" ]; then
     rm -rf "$OUT/eval/lh_mtlc"
+    mkdir -p "$OUT/eval"
     lerobot-eval --policy.path="$CKPT" --env.type=calvin --env.task=lh_mtlc --env.chain_stop="$CHAINS" \
         --env.results_path="$OUT/eval/lh_mtlc/results.jsonl" --eval.n_episodes=1 --eval.batch_size=1 \
-        --eval.use_async_envs=false --output_dir="$OUT/eval/lh_mtlc" --seed=0 2>&1 | grep -E "Error|error" || true
-    [ -f "$OUT/eval/lh_mtlc/eval_info.json" ] || { echo "demo.sh: lerobot-eval of lh_mtlc failed" >&2; exit 1; }
+        --eval.use_async_envs=false --output_dir="$OUT/eval/lh_mtlc" --seed=0 \
+        > "$OUT/eval/lh_mtlc.log" 2>&1 || { tail -5 "$OUT/eval/lh_mtlc.log" >&2; exit 1; }
 fi
 
 stage "5/5 report -> $OUT/report"
+mkdir -p "$OUT/report"
 [ -f "$OUT/report/traces.png" ] || subgoalvla-render-traces --policy-path "$CKPT" --task open_drawer --steps 90 \
     --seed 1000 --output "$OUT/report/traces.png"
-subgoalvla-calvin-report "$OUT/eval/lh_mtlc/results.jsonl" --output-dir "$OUT/report/lh_mtlc"
+subgoalvla-calvin-report "$OUT/eval/lh_mtlc/results.jsonl" --output-dir "$OUT/report/lh_mtlc" > "$OUT/report/lh_mtlc.log" 2>&1
 subgoalvla-demo-report --train-log "$OUT/train.log" --eval-dir "$OUT/eval" --output-dir "$OUT/report"
 stage "done: report $OUT/report/README.md (success per task, LH-1..5, curves, traces, videos)"
