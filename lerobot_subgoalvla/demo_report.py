@@ -43,15 +43,30 @@ def _number(text: str) -> float:
 
 
 def parse_train_log(path: Path) -> list[dict[str, float]]:
-    """The metrics of every ``step:...`` line LeRobot logged (steps may be rounded, e.g. ``1K``)."""
-    records = []
+    """The metrics of every ``step:...`` line LeRobot logged, with exact step numbers.
+
+    LeRobot prints steps rounded to the nearest thousand from 1000 on (``step:2K`` for 1500..2499); the lines come
+    every ``--log_freq`` steps, so a rounded step is replaced by the previous step plus that interval (the first
+    two exact steps give it) whenever the rounding allows it; otherwise (a resumed run) the rounded value stays.
+    """
+    records, raw_steps = [], []
     for line in Path(path).read_text(errors="replace").splitlines():
         start = line.find(" step:")
         if start < 0:
             continue
-        fields = {key: _number(value) for key, value in _LOG_FIELD.findall(line[start:])}
+        pairs = _LOG_FIELD.findall(line[start:])
+        fields = {key: _number(value) for key, value in pairs}
         if "step" in fields and "loss" in fields:
             records.append(fields)
+            raw_steps.append(dict(pairs)["step"])
+    exact = [r["step"] for r, text in zip(records, raw_steps, strict=True) if text[-1] not in _SUFFIX]
+    interval = exact[1] - exact[0] if len(exact) >= 2 else None
+    for i in range(1, len(records)):
+        text = raw_steps[i]
+        if text[-1] in _SUFFIX and interval is not None:
+            predicted = records[i - 1]["step"] + interval
+            if abs(predicted - records[i]["step"]) <= _SUFFIX[text[-1]] / 2:
+                records[i]["step"] = predicted
     return records
 
 

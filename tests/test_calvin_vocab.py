@@ -31,3 +31,17 @@ def test_unknown_task_names_the_valid_ones():
     assert check_task_name("open_drawer") == "open_drawer"
     with pytest.raises(ValueError, match="valid tasks: rotate_red_block_right, .*push_into_drawer"):
         check_task_name("open_the_drawer")
+
+
+def test_tiny_tokenizer_knows_every_training_and_evaluation_word():
+    from lerobot_subgoalvla.policies.subgoalvla.backbone import UNK_TOKEN, build_tiny_tokenizer
+
+    tokenizer = build_tiny_tokenizer()
+    unk = tokenizer.convert_tokens_to_ids(UNK_TOKEN)
+    texts = [*EVAL_INSTRUCTIONS.values(), *(t for texts in TRAINING_ANNOTATIONS.values() for t in texts)]
+    unknown = [text for text in texts if unk in tokenizer(text, add_special_tokens=False)["input_ids"]]
+    assert unknown == []
+    led, bulb = (
+        tokenizer(TRAINING_ANNOTATIONS[task][0])["input_ids"] for task in ("turn_on_led", "turn_on_lightbulb")
+    )
+    assert led != bulb

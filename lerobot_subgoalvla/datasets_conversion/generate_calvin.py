@@ -201,7 +201,8 @@ def _check_options(segments_dir: Path, opts: GeneratorOptions) -> None:
 def generate(output: Path, opts: GeneratorOptions, workers: int = 1) -> dict[str, Path]:
     """Generate (or finish generating) ``OUTPUT/training`` and ``OUTPUT/validation``; returns their paths."""
     output = Path(output)
-    if all((output / name).is_dir() for name in SPLITS):
+    splits = [name for name in SPLITS if name == "training" or opts.val_fraction > 0]  # no empty validation
+    if all((output / name).is_dir() for name in splits):
         raise FileExistsError(f"{output}: already holds a generated dataset; choose another --output")
     segments_dir = output / SEGMENTS_DIR
     _check_options(segments_dir, opts)
@@ -221,12 +222,12 @@ def generate(output: Path, opts: GeneratorOptions, workers: int = 1) -> dict[str
                 for job, _ in zip(todo, pool.map(generate_segment, todo), strict=True):
                     bar.update(job.num_tasks)
     validation = opts.validation_segments()
-    for name in SPLITS:
+    for name in splits:
         selected = [job for job in jobs if (job.index in validation) == (name == "validation")]
         if not (output / name).is_dir():
             _assemble_split(output, name, selected, opts)
     shutil.rmtree(segments_dir)
-    return {name: output / name for name in SPLITS}
+    return {name: output / name for name in splits}
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:

@@ -131,3 +131,25 @@ def test_worker_count_does_not_change_the_data(generated: Path, tmp_path: Path) 
     generate(tmp_path / "two_workers", OPTIONS, workers=2)
     for name in ("training", "validation"):
         _assert_same(_split_contents(tmp_path / "two_workers" / name), _split_contents(generated / name))
+
+
+def test_task_filter_is_validated_and_recorded(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="Unknown CALVIN task 'open_the_drawer'"):
+        GeneratorOptions(num_tasks=4, seed=0, tasks=("open_drawer", "open_the_drawer"))
+    with pytest.raises(ValueError, match="at least one"):
+        GeneratorOptions(num_tasks=4, seed=0, tasks=())
+    args = generate_calvin.parse_args(["--output", "x", "--num-tasks", "4", "--seed", "0",
+                                       "--tasks", "open_drawer, close_drawer"])  # fmt: skip
+    assert args.tasks == ("open_drawer", "close_drawer")
+    with pytest.raises(SystemExit):
+        generate_calvin.parse_args(["--output", "x", "--num-tasks", "4", "--seed", "0", "--tasks", "nope"])
+
+
+def test_task_filter_limits_what_the_expert_plays(tmp_path: Path) -> None:
+    options = GeneratorOptions(num_tasks=2, seed=5, val_fraction=0.0, tasks_per_segment=2, static_size=32,
+                               gripper_size=32, tasks=("turn_on_led", "turn_off_led"))  # fmt: skip
+    output = generate(tmp_path / "led", options)
+    tasks = CalvinSplit(output["training"]).language().task
+    assert len(tasks) > 0 and set(tasks) <= {"turn_on_led", "turn_off_led"}
+    generate_calvin._check_options(tmp_path / "again" / ".segments", options)  # tuples round-trip via JSON
+    generate_calvin._check_options(tmp_path / "again" / ".segments", options)
