@@ -70,6 +70,18 @@ def parse_train_log(path: Path) -> list[dict[str, float]]:
     return records
 
 
+_TQDM_ELAPSED = re.compile(r"Training: *100%\|[^|]*\| *(\d+)/\d+ \[(?:(\d+):)?(\d+):(\d+)<")
+
+
+def train_wall_seconds(path: Path) -> float | None:
+    """Wall time of the finished training from LeRobot's progress bar (``Training: 100%|...| N/N [MM:SS<``)."""
+    matches = _TQDM_ELAPSED.findall(Path(path).read_text(errors="replace"))
+    if not matches:
+        return None
+    _, hours, minutes, seconds = matches[-1]
+    return 3600 * int(hours or 0) + 60 * int(minutes) + int(seconds)
+
+
 def wilson_interval(successes: int, total: int, z: float = 1.96) -> tuple[float, float]:
     """The 95 % Wilson score interval of a success rate (sensible also at 0/n and n/n)."""
     if total == 0:
@@ -174,7 +186,8 @@ def _markdown(summary: dict[str, Any], output_dir: Path) -> str:
                   "| LH-1 | LH-2 | LH-3 | LH-4 | LH-5 |", "| --- | --- | --- | --- | --- |", f"| {rates} |", ""]  # fmt: skip
     train = summary["training"]
     if train:
-        lines += [f"Training: {train['steps']:.0f} steps, last planner loss {train['planner_loss']:.4f}, "
+        minutes = "" if train["wall_seconds"] is None else f" in {train['wall_seconds'] / 60:.0f} min"
+        lines += [f"Training: {train['steps']:.0f} steps{minutes}, last planner loss {train['planner_loss']:.4f}, "
                   f"generator loss {train['generator_loss']:.4f}, {train['samples_per_s']:.0f} samples/s.", "",
                   "![loss curves](loss_curves.png)", ""]  # fmt: skip
     lines += ["Predicted subgoal traces (ghost robots) over the executed rollout: ![traces](traces.png)", ""]
@@ -191,6 +204,7 @@ def build_report(train_log: Path | None, eval_dir: Path, output_dir: Path) -> di
     if last is not None:
         training = {
             "steps": last["step"],
+            "wall_seconds": train_wall_seconds(train_log),
             "planner_loss": last.get("planner_loss", math.nan),
             "generator_loss": last.get("generator_loss", math.nan),
             "samples_per_s": last.get("smp/s", math.nan),

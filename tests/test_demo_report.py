@@ -16,6 +16,7 @@ LINE = ("INFO 2026-12-01 ot_train.py:641 step:{step} smpl:2K ep:20 epch:0.07 los
 def _log(tmp_path: Path, steps: list[str]) -> Path:
     lines = ["Training:  2%|  | 50/3000 [00:36<28:55]"]  # tqdm noise is ignored
     lines += [LINE.format(step=s, loss=1.0 / (i + 1), stage=1 if i < 3 else 2) for i, s in enumerate(steps)]
+    lines.append("Training: 100%|██████████| 200/200 [1:02:05<00:00,  1.48step/s]")
     path = tmp_path / "train.log"
     path.write_text("\n".join(lines))
     return path
@@ -63,7 +64,8 @@ def test_report_has_success_per_task_chains_and_curves(tmp_path: Path) -> None:
     text = (out / "README.md").read_text()
     assert "37.5 %" in text and "| open_drawer | 3/4 |" in text
     assert "(../eval/open_drawer/videos/eval_episode_0.mp4)" in text  # links stay inside the output tree
-    assert json.loads((out / "summary.json").read_text())["training"]["steps"] == 200
+    training = json.loads((out / "summary.json").read_text())["training"]
+    assert training["steps"] == 200 and training["wall_seconds"] == 3725  # 1:02:05 from the progress bar
 
 
 def test_cli_refuses_a_missing_eval_dir(tmp_path: Path, caplog) -> None:

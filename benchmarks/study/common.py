@@ -190,3 +190,32 @@ def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path, train_secon
         "eval_seconds": eval_seconds, "scene": SCENE, "machine": machine(),
         "train_command": shlex.join(train_command), "episodes_evaluated": steps,
     }  # fmt: skip
+
+
+def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -> list[dict]:
+    """Records of a finished ``scripts/demo.sh`` run (its ``train.log``, ``eval/<task>/`` and ``eval/lh_mtlc/``).
+
+    The demo is the multi-task SubgoalVLA run of this study; importing it avoids training the same run twice.
+    """
+    from lerobot_subgoalvla.demo_report import parse_train_log, read_task_results, train_wall_seconds
+    from lerobot_subgoalvla.envs.calvin.report import summarize
+    from lerobot_subgoalvla.envs.calvin.results import read_episode_results
+
+    log = parse_train_log(demo_dir / "train.log")
+    if not log:
+        raise ValueError(f"{demo_dir / 'train.log'} has no lerobot-train step lines")
+    steps = int(log[-1]["step"])
+    seconds = train_wall_seconds(demo_dir / "train.log")
+    common = {"method": method, "seed": seed, "train_samples": steps * batch_size,
+              "train_seconds": None if seconds is None else round(seconds, 1),
+              "samples_per_s": log[-1].get("smp/s"), "scene": SCENE, "machine": machine(),
+              "source": str(demo_dir)}  # fmt: skip
+    records = [{**common, "setting": "multi_task", "task": task, "episodes": r["episodes"],
+                "successes": r["successes"]} for task, r in read_task_results(demo_dir / "eval").items()]  # fmt: skip
+    chains = demo_dir / "eval" / "lh_mtlc" / "results.jsonl"
+    if chains.is_file():
+        report = summarize(read_episode_results(chains))
+        records.append({**common, "setting": "lh_mtlc", "task": "lh_mtlc", "episodes": report.num_chains,
+                        "successes": round(report.chain_sr[5] * report.num_chains),
+                        "avg_len": report.avg_seq_len})  # fmt: skip
+    return records

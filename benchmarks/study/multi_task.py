@@ -19,7 +19,16 @@ import argparse
 import logging
 from pathlib import Path
 
-from common import FIXTURE_TASKS, DataSpec, Method, RunSpec, execute
+from common import (
+    FIXTURE_TASKS,
+    DataSpec,
+    Method,
+    RunSpec,
+    append_records,
+    execute,
+    load_records,
+    records_from_demo,
+)
 
 LAPTOP = ("--policy.type=subgoalvla", "--policy.preset=laptop")
 METHODS = {
@@ -49,7 +58,27 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--work-dir", type=Path, default=Path("outputs/study"))
     parser.add_argument("--dry-run", action="store_true")
+    parser.add_argument(
+        "--import-demo",
+        type=Path,
+        default=None,
+        metavar="DEMO_DIR",
+        help="record a finished scripts/demo.sh run as the subgoalvla run of --seeds[0], then stop",
+    )
     args = parser.parse_args()
+    if args.import_demo is not None:
+        seed = args.seeds[0]
+        if any(
+            r["method"] == "subgoalvla" and r["seed"] == seed and r.get("source") == str(args.import_demo)
+            for r in load_records()
+        ):
+            print(f"{args.import_demo} is already recorded")
+            return
+        records = records_from_demo(args.import_demo, "subgoalvla", seed, batch_size=32)
+        append_records(records)
+        for r in records:
+            print(f"subgoalvla {r['setting']:<11} {r['task']:<20} {r['successes']}/{r['episodes']}")
+        return
     data = DataSpec("fixtures", FIXTURE_TASKS, args.demos)
     for name in args.methods:
         extra = (f"--policy.stage2_start_step={args.steps * 4 // 5}",) if name in TWO_STAGE else ()
