@@ -258,9 +258,17 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument(
-        "--presets", nargs="+", default=["tiny", "small", "paper"], choices=["tiny", "small", "paper"]
+        "--presets",
+        nargs="+",
+        default=["tiny", "laptop", "small", "paper"],
+        choices=["tiny", "laptop", "small", "paper"],
     )
-    parser.add_argument("--latency-presets", nargs="*", default=["tiny"], choices=["tiny", "small", "paper"])
+    parser.add_argument(
+        "--latency-presets",
+        nargs="*",
+        default=["tiny", "laptop"],
+        choices=["tiny", "laptop", "small", "paper"],
+    )
     parser.add_argument("--device", default="cpu", help="device for the latency runs (cpu, cuda)")
     parser.add_argument("--runs", type=int, default=30, help="chunks timed per preset (median reported)")
     parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads on CPU")
