@@ -1,11 +1,12 @@
 """The learning claim in a form that can fail: expert data -> lerobot-train -> closed-loop success in CALVIN.
 
-Marked slow (about 25 minutes on 2 CPU cores): it runs the user's commands in subprocesses, as the main command
+Marked slow (15 minutes on 2 CPU cores): it runs the user's commands in subprocesses, as the main command
 does, on the two LED tasks (the fixture whose button the arm must find and press; different instructions, same
 place): 96 expert attempts, the ``laptop`` preset for 1500 steps of batch 32 through both stages, then
 ``lerobot-eval`` of 10 episodes per task from seeds the data never used. A policy that has not learned anything
 succeeds in 0 of them (the untrained arm drifts away, and the expert's start states are drawn so that the task is
-not already done); the bar of 5 of 20 is far above chance and below what the demo measures for these tasks.
+not already done); measured: 20 of 20 (seed 3 data, eval seeds 5000..); the bar of 12 of 20 leaves room for
+another machine's numerics.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import pytest
 
 TASKS = ("turn_on_led", "turn_off_led")
 STEPS, BATCH, EPISODES = 1500, 32, 10
-MIN_SUCCESSES = 5  # of 2 x 10 episodes
+MIN_SUCCESSES = 12  # of 2 x 10 episodes
 
 
 def _bin(name: str) -> str:
