@@ -16,12 +16,13 @@ cd "$(dirname "$0")/.."
 source scripts/setup_venv.sh
 # One thread per process: on 2 cores the trainer and its data worker would otherwise oversubscribe (up to 20x
 # slower updates when anything else runs).
-export HF_HUB_OFFLINE=1 MPLBACKEND=Agg OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
+export MPLBACKEND=Agg OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
 
 FIXTURE_TASKS=(open_drawer close_drawer move_slider_left move_slider_right turn_on_led turn_off_led
     turn_on_lightbulb turn_off_lightbulb)
 case "${DEMO_PROFILE:-cpu}" in
-    cpu) PRESET=laptop; TASKS=240; STEPS=2500; BATCH=32; EPISODES=10; CHAINS=20; DEVICE=cpu ;;
+    # cpu: nothing is downloaded (random backbone); gpu: the small preset fetches its pretrained VLM once
+    cpu) PRESET=laptop; TASKS=240; STEPS=2500; BATCH=32; EPISODES=10; CHAINS=20; DEVICE=cpu; export HF_HUB_OFFLINE=1 ;;
     gpu) PRESET=small; TASKS=2400; STEPS=30000; BATCH=32; EPISODES=20; CHAINS=100; DEVICE=cuda ;;
     *) echo "demo.sh: DEMO_PROFILE=${DEMO_PROFILE} is not valid; use cpu or gpu" >&2; exit 2 ;;
 esac
