@@ -206,7 +206,10 @@ def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -
         raise ValueError(f"{demo_dir / 'train.log'} has no lerobot-train step lines")
     steps = int(log[-1]["step"])
     seconds = train_wall_seconds(demo_dir / "train.log")
+    info_path = demo_dir / "dataset" / "meta" / "info.json"
+    info = json.loads(info_path.read_text()) if info_path.is_file() else {}
     common = {"method": method, "seed": seed, "train_samples": steps * batch_size,
+              "train_episodes": info.get("total_episodes"), "train_frames": info.get("total_frames"),
               "train_seconds": None if seconds is None else round(seconds, 1),
               "samples_per_s": log[-1].get("smp/s"), "scene": SCENE, "machine": machine(),
               "source": str(demo_dir)}  # fmt: skip

@@ -63,21 +63,22 @@ def main() -> None:
         type=Path,
         default=None,
         metavar="DEMO_DIR",
-        help="record a finished scripts/demo.sh run as the subgoalvla run of --seeds[0], then stop",
+        help="record a finished run laid out like scripts/demo.sh's (train.log, eval/<task>/) as the run of "
+        "--methods[0] and --seeds[0], then stop",
     )
     args = parser.parse_args()
     if args.import_demo is not None:
-        seed = args.seeds[0]
+        seed, method = args.seeds[0], args.methods[0]
         if any(
-            r["method"] == "subgoalvla" and r["seed"] == seed and r.get("source") == str(args.import_demo)
+            r["method"] == method and r["seed"] == seed and r.get("source") == str(args.import_demo)
             for r in load_records()
         ):
             print(f"{args.import_demo} is already recorded")
             return
-        records = records_from_demo(args.import_demo, "subgoalvla", seed, batch_size=32)
+        records = records_from_demo(args.import_demo, method, seed, batch_size=32)
         append_records(records)
         for r in records:
-            print(f"subgoalvla {r['setting']:<11} {r['task']:<20} {r['successes']}/{r['episodes']}")
+            print(f"{method} {r['setting']:<11} {r['task']:<20} {r['successes']}/{r['episodes']}")
         return
     data = DataSpec("fixtures", FIXTURE_TASKS, args.demos)
     for name in args.methods:
