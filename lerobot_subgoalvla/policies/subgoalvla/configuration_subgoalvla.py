@@ -14,15 +14,13 @@ rebuilds exactly the same model):
 - ``small``: a real pretrained LLaVA-architecture VLM of about 0.9B parameters
   (``llava-hf/llava-interleave-qwen-0.5b-hf``: SigLIP-so400m + Qwen1.5-0.5B) with DiT-S heads (384 x 12 x 6);
   trains on one 24 GB GPU with the vision tower frozen.
-- ``laptop``: a randomly initialised LLaVA-architecture model (no download) sized to *learn* CALVIN's fixture
-  tasks in about half an hour on 2 CPU cores: 80 px input (the tiny preset's 32 px shows a block as one pixel), a trainable vision
-  tower (a random one cannot see while frozen), small DiT heads and a recipe for short runs (heads 1e-3,
-  projector/LLM/vision 3e-4, 2 % warmup, cosine to 1 %). The README's main command uses it.
+- ``laptop``: a random LLaVA-architecture model (no download) that learns CALVIN's fixture tasks in ~20 minutes
+  on 2 CPU cores: 80 px input, a trainable vision tower (a frozen random one cannot see), small DiT heads and a
+  short-run recipe (heads 1e-3, the rest 3e-4, 2 % warmup, cosine to 1 %). The README's main command uses it.
 - ``tiny``: the same kind of model at the smallest sizes (32 px, 32 wide); for the unit tests and smoke runs.
 
-Precision. ``small`` and ``paper`` train with bf16 *mixed precision* as the paper does: the weights (and AdamW's
-state) stay float32 and ``dtype=bfloat16`` makes ``lerobot-train`` run the forward pass under accelerate's bf16
-autocast. Storing the weights in bf16 instead would round most of the small updates of lr 2e-5 away.
+Precision: ``small``/``paper`` train in bf16 mixed precision (float32 weights, ``dtype=bfloat16`` = accelerate
+autocast in ``lerobot-train``); bf16 weights would round most lr-2e-5 updates away (docs/policy.md).
 
 Where the paper is inconsistent this module follows the more specific statement and says so:
 
