@@ -57,10 +57,7 @@ from lerobot_subgoalvla.policies.subgoalvla.schedule import TwoStageCosineSchedu
 
 logger = logging.getLogger(__name__)
 
-# --------------------------------------------------------------------------------------------------------------
-# Batch keys of the data contract (DESIGN.md "Data contract"); the converter writes them, the env provides the
-# cameras and the state at evaluation time.
-# --------------------------------------------------------------------------------------------------------------
+# Batch keys of the data contract: the converter writes them, the env provides cameras and state at evaluation.
 STATIC_CAMERA_KEY = "observation.images.static"
 GRIPPER_CAMERA_KEY = "observation.images.gripper"
 STATE_HISTORY_KEY = "observation.state_history"
