@@ -92,6 +92,11 @@ def wilson_interval(successes: int, total: int, z: float = 1.96) -> tuple[float,
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
+def episode_successes(info: dict[str, Any]) -> list[bool]:
+    """Per-episode success flags of every task group in a ``lerobot-eval`` ``eval_info.json``."""
+    return [bool(s) for entry in info["per_task"] for s in entry["metrics"]["successes"]]
+
+
 def read_task_results(eval_dir: Path) -> dict[str, dict[str, Any]]:
     """Task -> successes/episodes/interval/videos from each ``<task>/eval_info.json`` (CALVIN task order)."""
     results = {}
@@ -100,7 +105,7 @@ def read_task_results(eval_dir: Path) -> dict[str, dict[str, Any]]:
         if not path.is_file():
             continue
         info = json.loads(path.read_text())
-        successes = [bool(s) for entry in info["per_task"] for s in entry["metrics"]["successes"]]
+        successes = episode_successes(info)
         low, high = wilson_interval(sum(successes), len(successes))
         results[task] = {
             "successes": sum(successes),
@@ -113,9 +118,11 @@ def read_task_results(eval_dir: Path) -> dict[str, dict[str, Any]]:
 
 
 def _save(fig: Any, path: Path) -> None:
+    from lerobot_subgoalvla.envs.calvin.results import atomic_write
+
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png")
-    path.write_bytes(buffer.getvalue())
+    atomic_write(path, buffer.getvalue())
 
 
 def plot_losses(records: Sequence[dict[str, float]], path: Path) -> None:

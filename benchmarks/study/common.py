@@ -178,17 +178,17 @@ def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path, train_secon
         run(["lerobot-eval", f"--policy.path={checkpoint}", "--env.type=calvin", f"--env.task={task}", *size_flags,
              f"--eval.n_episodes={spec.episodes}", "--eval.batch_size=1", "--eval.use_async_envs=false",
              f"--output_dir={eval_dir}", f"--seed={EVAL_SEED}"], out / f"eval_{task}.log")  # fmt: skip
+    from lerobot_subgoalvla.demo_report import episode_successes
+
     info = json.loads((eval_dir / "eval_info.json").read_text())
-    successes = [bool(s) for entry in info["per_task"] for s in entry["metrics"]["successes"]]
-    steps = sum(len(entry["metrics"].get("sum_rewards", [])) for entry in info["per_task"])
-    eval_seconds = info["overall"].get("eval_s", float("nan"))
+    successes = episode_successes(info)
     return {
         "method": spec.method.name, "setting": spec.setting, "task": task, "seed": spec.seed,
         "episodes": len(successes), "successes": sum(successes),
         "train_samples": spec.steps * spec.method.batch_size, "train_seconds": round(train_seconds, 1),
         "samples_per_s": metrics.get("smp/s"), "eval_seconds_per_episode": info["overall"].get("eval_ep_s"),
-        "eval_seconds": eval_seconds, "scene": SCENE, "machine": machine(),
-        "train_command": shlex.join(train_command), "episodes_evaluated": steps,
+        "eval_seconds": info["overall"].get("eval_s"), "scene": SCENE, "machine": machine(),
+        "train_command": shlex.join(train_command),
     }  # fmt: skip
 
 

@@ -97,15 +97,22 @@ class ProprioNormalizerProcessorStep(ObservationProcessorStep):
 
     # Forward / inverse ------------------------------------------------------------------------------------------
     def _tensors(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
-        """mean (p,), std + eps (p,), angle mask (p,) bool and home offsets (p,) on ``like``'s device."""
+        """mean (p,), std + eps (p,), angle mask (p,) bool and home offsets (p,) on ``like``'s device (cached:
+        this runs on every env step and every batch)."""
+        cache = self.__dict__.setdefault("_device_tensors", {})
+        if like.device not in cache:
+            cache[like.device] = self._build_tensors(like.device)
+        return cache[like.device]
+
+    def _build_tensors(self, device: torch.device) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         if not self.mean:
             raise ValueError(
                 "subgoalvla_proprio_normalizer has no statistics: build the pre-processor with the dataset's "
                 "stats, or load the policy_preprocessor.json saved with the checkpoint"
             )
-        kwargs = {"dtype": torch.float32, "device": like.device}
+        kwargs = {"dtype": torch.float32, "device": device}
         mean, std = torch.tensor(self.mean, **kwargs), torch.tensor(self.std, **kwargs) + self.eps
-        is_angle = torch.zeros(len(self.mean), dtype=torch.bool, device=like.device)
+        is_angle = torch.zeros(len(self.mean), dtype=torch.bool, device=device)
         home = torch.zeros(len(self.mean), **kwargs)
         if self.angle_dims:
             is_angle[self.angle_dims] = True
@@ -159,6 +166,7 @@ class ProprioNormalizerProcessorStep(ObservationProcessorStep):
         if "mean" in state:
             self.mean = state["mean"].double().flatten().tolist()
             self.std = state["std"].double().flatten().tolist()
+            self.__dict__.pop("_device_tensors", None)  # statistics changed: rebuild on next use
             self.__post_init__()
 
     def transform_features(
