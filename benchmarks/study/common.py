@@ -106,6 +106,10 @@ class RunSpec:
     steps: int
     episodes: int
     extra_train_flags: tuple[str, ...] = field(default_factory=tuple)
+    #: An existing converted dataset of ``data``'s content (e.g. the demo's); generated when None.
+    dataset_root: Path | None = None
+    #: Episodes stepped together by ``lerobot-eval`` (more than one runs them in async env workers).
+    eval_batch_size: int = 1
 
     @property
     def run_name(self) -> str:
@@ -141,7 +145,7 @@ def execute(spec: RunSpec, work: Path) -> list[dict]:
     if _done(spec, load_records()):
         logger.info("%s: already in %s, skipped", spec.run_name, RESULTS_PATH)
         return []
-    root = spec.data.prepare(work)
+    root = spec.dataset_root or spec.data.prepare(work)
     out = work / "runs" / spec.run_name
     checkpoint = out / "train" / "checkpoints" / "last" / "pretrained_model"
     train_log = out / "train.log"
@@ -176,7 +180,8 @@ def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path, train_secon
                   f"--env.gripper_image_size={spec.data.gripper_size}"]  # fmt: skip
     if not (eval_dir / "eval_info.json").is_file():
         run(["lerobot-eval", f"--policy.path={checkpoint}", "--env.type=calvin", f"--env.task={task}", *size_flags,
-             f"--eval.n_episodes={spec.episodes}", "--eval.batch_size=1", "--eval.use_async_envs=false",
+             f"--eval.n_episodes={spec.episodes}", f"--eval.batch_size={spec.eval_batch_size}",
+             f"--eval.use_async_envs={str(spec.eval_batch_size > 1).lower()}",
              f"--output_dir={eval_dir}", f"--seed={EVAL_SEED}"], out / f"eval_{task}.log")  # fmt: skip
     from lerobot_subgoalvla.demo_report import episode_successes
 

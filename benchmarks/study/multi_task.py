@@ -57,6 +57,16 @@ def main() -> None:
     )
     parser.add_argument("--episodes", type=int, default=20)
     parser.add_argument("--work-dir", type=Path, default=Path("outputs/study"))
+    parser.add_argument(
+        "--dataset",
+        type=Path,
+        default=None,
+        metavar="ROOT",
+        help="train on this converted fixture-task dataset (e.g. outputs/demo/dataset) instead of generating one",
+    )
+    parser.add_argument(
+        "--eval-batch-size", type=int, default=1, help="episodes lerobot-eval steps together (async envs if > 1)"
+    )
     parser.add_argument("--dry-run", action="store_true")
     parser.add_argument(
         "--import-demo",
@@ -84,9 +94,8 @@ def main() -> None:
     for name in args.methods:
         extra = (f"--policy.stage2_start_step={args.steps * 4 // 5}",) if name in TWO_STAGE else ()
         for seed in args.seeds:
-            spec = RunSpec(
-                METHODS[name], "multi_task", data, FIXTURE_TASKS, seed, args.steps, args.episodes, extra
-            )
+            spec = RunSpec(METHODS[name], "multi_task", data, FIXTURE_TASKS, seed, args.steps, args.episodes,
+                           extra, dataset_root=args.dataset, eval_batch_size=args.eval_batch_size)  # fmt: skip
             if args.dry_run:
                 print(spec.run_name, " ".join((*spec.method.policy_flags, *extra)))
                 continue
