@@ -21,8 +21,8 @@ import time
 
 import numpy as np
 
-from lerobot_subgoalvla.envs.calvin import chains
-from lerobot_subgoalvla.envs.calvin.tasks import TaskOracle
+from lerobot_subgoalvla.envs.calvin.evaluation import chains
+from lerobot_subgoalvla.envs.calvin.oracle.tasks import TaskOracle
 
 
 def _reference(state: dict, count: int, seed: int) -> list[tuple[str, ...]]:

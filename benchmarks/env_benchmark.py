@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pybullet
 
-from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 EVAL_ROBOT_OBS = np.array(
     [0.02586889, -0.2313129, 0.5712808, 3.09045411, -0.02908596, 1.50013585, 0.07999963, -1.21779124, 1.03987629,

@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
-from lerobot_subgoalvla.envs.calvin.expert import ScriptedExpert
-from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
-from lerobot_subgoalvla.envs.calvin.start_states import sample_start_state
-from lerobot_subgoalvla.envs.calvin.tasks import TaskOracle
+from lerobot_subgoalvla.envs.calvin.expert.scripted_expert import ScriptedExpert
+from lerobot_subgoalvla.envs.calvin.expert.start_states import sample_start_state
+from lerobot_subgoalvla.envs.calvin.oracle.tasks import TaskOracle
+from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 logger = logging.getLogger("expert_success")
 

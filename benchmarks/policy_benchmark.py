@@ -32,7 +32,7 @@ from transformers import CLIPVisionConfig, LlamaConfig, LlavaConfig, Qwen2Config
 
 from lerobot_subgoalvla.policies.subgoalvla.backbone import VLMBackbone
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
-from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel, tiny_backbone_dims
+from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
 
 STATE_DIM, ACTION_DIM = 15, 7
 
@@ -105,7 +105,7 @@ def build_model(preset: str, device: str) -> SubgoalVLAModel:
             None,
             bb.layer,
             bb.freeze_vision_tower,
-            tiny=tiny_backbone_dims(config),
+            tiny=config.backbone.tiny_dims(),
             torch_dtype=bb.torch_dtype if device != "cpu" else "float32",
             vlm_config=architecture(preset),
         )

@@ -1,25 +1,36 @@
 """SubgoalVLA for LeRobot 0.6: the policy, the CALVIN environment and the CALVIN data path.
 
-Importing this package registers the policy type ``subgoalvla`` and the env type ``calvin`` with LeRobot.
+Importing the package itself is cheap (no torch, no LeRobot): the command-line tools that need neither start in
+well under a second, and env worker processes stay light. The public names below are loaded on first access;
+asking for any of them also registers the plugin with LeRobot (``lerobot_subgoalvla.plugin``).
 """
 
-import logging
+from __future__ import annotations
 
-from lerobot_subgoalvla.envs.calvin.configs import CalvinEnvConfig  # registers "calvin"
-from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
-    SubgoalVLAConfig,  # registers "subgoalvla"
-)
-from lerobot_subgoalvla.policies.subgoalvla.modeling_subgoalvla import SubgoalVLAPolicy
-from lerobot_subgoalvla.policies.subgoalvla.processor_subgoalvla import make_subgoalvla_pre_post_processors
+import importlib
+import logging
+from typing import Any
 
 __version__ = "0.1.0"
 
-__all__: list[str] = [
-    "__version__",
-    "CalvinEnvConfig",
-    "SubgoalVLAConfig",
-    "SubgoalVLAPolicy",
-    "make_subgoalvla_pre_post_processors",
-]
+#: public name -> module that defines it
+_LAZY_NAMES = {
+    "CalvinEnvConfig": "lerobot_subgoalvla.envs.calvin.configs",
+    "SubgoalVLAConfig": "lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla",
+    "SubgoalVLAPolicy": "lerobot_subgoalvla.policies.subgoalvla.modeling_subgoalvla",
+    "make_subgoalvla_pre_post_processors": "lerobot_subgoalvla.policies.subgoalvla.processor_subgoalvla",
+}
+
+__all__: list[str] = ["__version__", *_LAZY_NAMES]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY_NAMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    importlib.import_module("lerobot_subgoalvla.plugin")
+    value = getattr(importlib.import_module(_LAZY_NAMES[name]), name)
+    globals()[name] = value
+    return value
+
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -118,7 +118,7 @@ def read_task_results(eval_dir: Path) -> dict[str, dict[str, Any]]:
 
 
 def _save(fig: Any, path: Path) -> None:
-    from lerobot_subgoalvla.envs.calvin.results import atomic_write
+    from lerobot_subgoalvla.envs.calvin.evaluation.results import atomic_write
 
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png")
@@ -164,8 +164,8 @@ def plot_task_success(tasks: dict[str, dict[str, Any]], path: Path) -> None:
 
 
 def _chains(eval_dir: Path) -> dict[str, Any] | None:
-    from lerobot_subgoalvla.envs.calvin.report import summarize
-    from lerobot_subgoalvla.envs.calvin.results import read_episode_results
+    from lerobot_subgoalvla.envs.calvin.evaluation.report import summarize
+    from lerobot_subgoalvla.envs.calvin.evaluation.results import read_episode_results
 
     path = Path(eval_dir) / LH_MTLC_DIR / "results.jsonl"
     if not path.is_file():

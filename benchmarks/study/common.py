@@ -203,8 +203,8 @@ def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -
     The demo is the multi-task SubgoalVLA run of this study; importing it avoids training the same run twice.
     """
     from lerobot_subgoalvla.demo_report import parse_train_log, read_task_results, train_wall_seconds
-    from lerobot_subgoalvla.envs.calvin.report import summarize
-    from lerobot_subgoalvla.envs.calvin.results import read_episode_results
+    from lerobot_subgoalvla.envs.calvin.evaluation.report import summarize
+    from lerobot_subgoalvla.envs.calvin.evaluation.results import read_episode_results
 
     log = parse_train_log(demo_dir / "train.log")
     if not log:

@@ -65,7 +65,10 @@ def main() -> None:
         help="train on this converted fixture-task dataset (e.g. outputs/demo/dataset) instead of generating one",
     )
     parser.add_argument(
-        "--eval-batch-size", type=int, default=1, help="episodes lerobot-eval steps together (async envs if > 1)"
+        "--eval-batch-size",
+        type=int,
+        default=1,
+        help="episodes lerobot-eval steps together (async envs if > 1)",
     )
     parser.add_argument("--dry-run", action="store_true")
     parser.add_argument(

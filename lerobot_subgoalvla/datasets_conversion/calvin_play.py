@@ -131,9 +131,9 @@ def record_segment(
         max_steps_per_task: expert step budget per task (CALVIN's rollout limit is 360).
         tasks: candidate task names.
     """
-    from lerobot_subgoalvla.envs.calvin.expert import ScriptedExpert, is_feasible
-    from lerobot_subgoalvla.envs.calvin.start_states import sample_start_state
-    from lerobot_subgoalvla.envs.calvin.tasks import TaskOracle
+    from lerobot_subgoalvla.envs.calvin.expert.scripted_expert import ScriptedExpert, is_feasible
+    from lerobot_subgoalvla.envs.calvin.expert.start_states import sample_start_state
+    from lerobot_subgoalvla.envs.calvin.oracle.tasks import TaskOracle
 
     oracle = TaskOracle()
     first_task = str(rng.choice(tasks))

@@ -123,7 +123,7 @@ class SegmentJob:
 def generate_segment(job: SegmentJob) -> int:
     """Simulate and write one segment (frames 0..F-1 + ``segment.json``) atomically; returns F."""
     from lerobot_subgoalvla.datasets_conversion.calvin_play import record_segment
-    from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+    from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
     opts = job.options
     tmp = job.directory.with_suffix(".tmp")

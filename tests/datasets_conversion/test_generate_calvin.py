@@ -112,7 +112,7 @@ def test_option_errors(tmp_path: Path) -> None:
 @pytest.mark.parametrize("scene", ["calvin_A", "calvin_B", "calvin_C", "calvin_D"])
 def test_quirk_table_matches_simulation_slot_order(scene: str, calvin_assets_dir: Path) -> None:
     from lerobot_subgoalvla.datasets_conversion.calvin_quirks import block_order_of
-    from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+    from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
     sim = CalvinSimulation(scene, calvin_assets_dir, cameras=False)
     try:

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lerobot_subgoalvla.envs.calvin import chains
-from lerobot_subgoalvla.envs.calvin.chains import (
+from lerobot_subgoalvla.envs.calvin.evaluation import chains
+from lerobot_subgoalvla.envs.calvin.evaluation.chains import (
     EVAL_ROBOT_OBS,
     TASK_CATEGORIES,
     Chain,

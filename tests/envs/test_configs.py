@@ -10,11 +10,13 @@ import gymnasium as gym
 import pytest
 from lerobot.configs import FeatureType
 from lerobot.envs.configs import EnvConfig
-from lerobot.envs.utils import FreezeAfterEpisodeEnd, env_to_policy_features
+from lerobot.envs.utils import env_to_policy_features
 
 from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS, TASK_NAMES
-from lerobot_subgoalvla.envs.calvin.configs import GYM_ID, CalvinEnvConfig
+from lerobot_subgoalvla.envs.calvin.configs import CalvinEnvConfig
 from lerobot_subgoalvla.envs.calvin.env import official_chains
+from lerobot_subgoalvla.envs.calvin.protocol import GYM_ID
+from lerobot_subgoalvla.envs.calvin.vector import FrozenAfterEpisodeEnd
 
 
 def test_registered_as_calvin() -> None:
@@ -99,7 +101,7 @@ def test_sub_env_factory_pickles_with_the_standard_pickle() -> None:
     cfg = CalvinEnvConfig(chain_start=7, chain_stop=9, static_image_size=16, gripper_image_size=16)
     view = cfg.create_envs(n_envs=1)["calvin"][8]
     env = pickle.loads(pickle.dumps(view._shared.env_fns[0]))()
-    assert isinstance(env, FreezeAfterEpisodeEnd)
+    assert isinstance(env, FrozenAfterEpisodeEnd)
     assert list(env.unwrapped.chain_ids) == [7, 8]
     env.close()
 

@@ -13,9 +13,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS
-from lerobot_subgoalvla.envs.calvin.chains import EVAL_ROBOT_OBS, read_episode_results
 from lerobot_subgoalvla.envs.calvin.env import CalvinEnv, official_chains
-from lerobot_subgoalvla.envs.calvin.expert import ScriptedExpert, is_feasible
+from lerobot_subgoalvla.envs.calvin.evaluation.chains import EVAL_ROBOT_OBS, read_episode_results
+from lerobot_subgoalvla.envs.calvin.expert.scripted_expert import ScriptedExpert, is_feasible
 
 SMALL = {"static_size": 32, "gripper_size": 16}
 

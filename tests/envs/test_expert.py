@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
-from lerobot_subgoalvla.envs.calvin.expert import ScriptedExpert, is_feasible
-from lerobot_subgoalvla.envs.calvin.expert_skills import servo_action, tilted_euler, wrap_angle
-from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
-from lerobot_subgoalvla.envs.calvin.start_states import sample_start_state
-from lerobot_subgoalvla.envs.calvin.tasks import TaskOracle
+from lerobot_subgoalvla.envs.calvin.expert.scripted_expert import ScriptedExpert, is_feasible
+from lerobot_subgoalvla.envs.calvin.expert.skills import servo_action, tilted_euler, wrap_angle
+from lerobot_subgoalvla.envs.calvin.expert.start_states import sample_start_state
+from lerobot_subgoalvla.envs.calvin.oracle.tasks import TaskOracle
+from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 BUDGET = 360  # CALVIN's per-subtask step limit (spec 4.3)
 

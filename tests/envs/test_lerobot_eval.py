@@ -28,9 +28,9 @@ from lerobot.scripts.lerobot_eval import eval_policy_all
 
 from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS
 from lerobot_subgoalvla.envs.calvin import env as env_module
-from lerobot_subgoalvla.envs.calvin.chains import read_episode_results
 from lerobot_subgoalvla.envs.calvin.configs import CalvinEnvConfig
 from lerobot_subgoalvla.envs.calvin.env import official_chains
+from lerobot_subgoalvla.envs.calvin.evaluation.chains import read_episode_results
 
 TINY = {"static_image_size": 32, "gripper_image_size": 32}
 

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_subgoalvla.envs.calvin.chains import generate_chains, save_chains
-from lerobot_subgoalvla.envs.calvin.report import format_report, main, summarize
-from lerobot_subgoalvla.envs.calvin.results import EpisodeResult, append_episode_result
+from lerobot_subgoalvla.envs.calvin.evaluation.chains import generate_chains, save_chains
+from lerobot_subgoalvla.envs.calvin.evaluation.report import format_report, main, summarize
+from lerobot_subgoalvla.envs.calvin.evaluation.results import EpisodeResult, append_episode_result
 
 A = ("open_drawer", "turn_on_led", "lift_red_block_table", "place_in_drawer", "move_slider_left")
 B = ("close_drawer", "turn_off_led", "lift_blue_block_table", "stack_block", "move_slider_right")
@@ -126,7 +126,7 @@ def test_cli_bad_input(tmp_path: Path, caplog: pytest.LogCaptureFixture, case: s
 def test_console_scripts_resolve() -> None:
     from importlib.metadata import entry_points
 
-    from lerobot_subgoalvla.envs.calvin.chains import main as chains_main
+    from lerobot_subgoalvla.envs.calvin.evaluation.chains import main as chains_main
 
     scripts = {ep.name: ep for ep in entry_points(group="console_scripts")}
     assert scripts["subgoalvla-calvin-report"].load() is main

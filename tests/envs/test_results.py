@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_subgoalvla.envs.calvin.results import (
+from lerobot_subgoalvla.envs.calvin.evaluation.results import (
     EpisodeResult,
     append_episode_result,
     atomic_write,

@@ -9,7 +9,7 @@ import numpy as np
 import pybullet
 import pytest
 
-from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 HOLD_OPEN = np.array([0, 0, 0, 0, 0, 0, 1.0])
 EVAL_ROBOT_OBS = np.array(

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 #: robot_obs every LH-MTLC chain starts from (calvin-spec 4.2).
 EVAL_ROBOT_OBS = np.array(

@@ -11,7 +11,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
-from lerobot_subgoalvla.envs.calvin.tasks import TASK_SPECS, TaskOracle
+from lerobot_subgoalvla.envs.calvin.oracle.tasks import TASK_SPECS, TaskOracle
 
 ROBOT, TABLE = 1, 2
 BLOCK_UIDS = {"block_red": 3, "block_blue": 4, "block_pink": 5}
@@ -232,8 +232,8 @@ def test_malformed_info_names_the_missing_key() -> None:
 
 def test_oracle_reads_the_simulator_info() -> None:
     """The seam with CalvinSimulation.get_info(): teleport doors, lights and blocks between two infos."""
-    from lerobot_subgoalvla.envs.calvin.chains import EVAL_ROBOT_OBS, scene_obs_for_state
-    from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+    from lerobot_subgoalvla.envs.calvin.evaluation.chains import EVAL_ROBOT_OBS, scene_obs_for_state
+    from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
     state = {"led": 0, "lightbulb": 0, "slider": "right", "drawer": "closed", "red_block": "table",
              "blue_block": "slider_left", "pink_block": "table", "grasped": 0}  # fmt: skip

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -20,7 +21,6 @@ from transformers import (
 from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS
 from lerobot_subgoalvla.policies.subgoalvla.backbone import (
     IMAGE_TOKEN,
-    TinyLlavaDims,
     VLMBackbone,
     VLMInputSpec,
     build_tiny_llava_config,
@@ -29,8 +29,12 @@ from lerobot_subgoalvla.policies.subgoalvla.backbone import (
     prepare_pixel_values,
     tokenize_instructions,
 )
+from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
 
 INSTRUCTIONS = ["open the drawer", "push the sliding door to the left side"]
+
+#: The tiny preset's backbone dimensions (the one place they are set).
+TINY = SubgoalVLAConfig(preset="tiny").backbone.tiny_dims()
 
 
 def _inputs(backbone: VLMBackbone, batch: int = 2) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -46,11 +50,11 @@ def test_tiny_tokenizer_is_deterministic_and_covers_calvin_instructions() -> Non
     for instruction in EVAL_INSTRUCTIONS.values():
         ids = first(instruction, add_special_tokens=False)["input_ids"]
         assert first.unk_token_id not in ids, instruction
-    assert first.convert_tokens_to_ids(IMAGE_TOKEN) == build_tiny_llava_config(TinyLlavaDims()).image_token_id
+    assert first.convert_tokens_to_ids(IMAGE_TOKEN) == build_tiny_llava_config(TINY).image_token_id
 
 
 def test_tokenize_instructions_expands_image_placeholders_and_pads() -> None:
-    spec = VLMInputSpec.load(None, TinyLlavaDims())
+    spec = VLMInputSpec.load(None, TINY)
     assert spec.num_image_tokens == (32 // 8) ** 2
     ids, mask = tokenize_instructions(build_tiny_tokenizer(), INSTRUCTIONS, 12, spec)
     assert ids.shape == mask.shape == (2, spec.num_image_tokens + 12)
@@ -70,14 +74,14 @@ def test_prepare_pixel_values_places_cameras_side_by_side() -> None:
 
 
 def test_backbone_returns_layer_k_hidden_states_and_mask() -> None:
-    backbone = VLMBackbone(None, layer=None, tiny=TinyLlavaDims(text_num_layers=4)).eval()
+    backbone = VLMBackbone(None, layer=None, tiny=dataclasses.replace(TINY, text_num_layers=4)).eval()
     assert backbone.layer == 2 and len(backbone.vlm.language_model.layers) == 2  # k = m // 2, truncated
     ids, mask, pixels = _inputs(backbone)
     hidden, valid = backbone(ids, mask, pixels)
     assert hidden.shape == (2, ids.shape[1], 32)
     assert valid.dtype == torch.bool and torch.equal(valid, mask.bool())
     # The same weights in the full 4-layer model: our output must be its hidden_states[k] (pre-final-norm).
-    full = AutoModel.from_config(build_tiny_llava_config(TinyLlavaDims(text_num_layers=4))).eval()
+    full = AutoModel.from_config(build_tiny_llava_config(dataclasses.replace(TINY, text_num_layers=4))).eval()
     missing, unexpected = full.load_state_dict(backbone.vlm.state_dict(), strict=False)
     assert not unexpected and all(
         ".layers.2." in k or ".layers.3." in k or k.endswith("norm.weight") for k in missing
@@ -123,12 +127,12 @@ def test_padding_does_not_change_valid_hidden_states() -> None:
 
 def test_bad_layer_is_rejected() -> None:
     with pytest.raises(ValueError, match="layer k=9"):
-        VLMBackbone(None, layer=9, tiny=TinyLlavaDims(text_num_layers=4))
+        VLMBackbone(None, layer=9, tiny=dataclasses.replace(TINY, text_num_layers=4))
 
 
 def _save_tiny_checkpoint(path: Path) -> LlavaForConditionalGeneration:
     """A tiny LLaVA saved the way llava-hf checkpoints are: model + tokenizer + image processor."""
-    config = build_tiny_llava_config(TinyLlavaDims(text_num_layers=4))
+    config = build_tiny_llava_config(dataclasses.replace(TINY, text_num_layers=4))
     model = LlavaForConditionalGeneration(config).eval()
     model.save_pretrained(path)
     build_tiny_tokenizer().save_pretrained(path)

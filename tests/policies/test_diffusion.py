@@ -1,4 +1,4 @@
-"""DiffusionObjective: loss weighting and masking, CFG, DDIM sampling and its step cap."""
+"""DiffusionObjective: loss weighting and masking, CFG, DDIM sampling and its step limit."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ class ConstantDenoiser:
 
 
 def test_loss_is_finite_and_backpropagates() -> None:
-    objective = DiffusionObjective(repeats=4)
+    objective = DiffusionObjective(num_train_timesteps=8, num_inference_steps=8, repeats=4)
     model = _dit()
     loss = objective.compute_loss(model, torch.randn(3, 15, 7), torch.randn(3, 6, 16))
     assert loss.ndim == 0 and torch.isfinite(loss)
@@ -40,7 +40,7 @@ def test_loss_is_finite_and_backpropagates() -> None:
 
 def test_loss_weights_timesteps_and_adds_l2_penalty() -> None:
     """With eps_hat = 0 the per-sample error is mean(eps^2); check the (1 - t/T) weights and the l2 term exactly."""
-    objective = DiffusionObjective(num_train_timesteps=8, repeats=8, l2_weight=0.5, cond_dropout_prob=0.0)
+    objective = DiffusionObjective(num_inference_steps=8, num_train_timesteps=8, repeats=8, l2_weight=0.5, cond_dropout_prob=0.0)
     x0, cond = torch.randn(4, 5, 7), torch.randn(4, 2, 16)
     gen = torch.Generator().manual_seed(3)
     denoiser = ConstantDenoiser(0.0)
@@ -59,7 +59,7 @@ def test_loss_weights_timesteps_and_adds_l2_penalty() -> None:
 
 
 def test_padded_targets_do_not_contribute() -> None:
-    objective = DiffusionObjective(repeats=2, cond_dropout_prob=0.0)
+    objective = DiffusionObjective(num_train_timesteps=8, num_inference_steps=8, repeats=2, cond_dropout_prob=0.0)
     model = _dit()
     x0, cond = torch.randn(2, 15, 7), torch.randn(2, 3, 16)
     valid = torch.ones(2, 15, dtype=torch.bool)
@@ -79,7 +79,7 @@ def test_padded_targets_do_not_contribute() -> None:
 
 
 def test_cfg_with_scale_one_equals_conditional_prediction() -> None:
-    objective = DiffusionObjective()
+    objective = DiffusionObjective(num_train_timesteps=8, num_inference_steps=8)
     model = _dit().eval()
     x, cond = torch.randn(2, 15, 7), torch.randn(2, 4, 16)
     t = torch.tensor(5)
@@ -94,7 +94,7 @@ def test_cfg_with_scale_one_equals_conditional_prediction() -> None:
 
 @pytest.mark.parametrize("guidance_scale", [1.0, 2.0])
 def test_ddim_sample_shapes_and_seeded_determinism(guidance_scale: float) -> None:
-    objective = DiffusionObjective(num_inference_steps=4, guidance_scale=guidance_scale)
+    objective = DiffusionObjective(num_train_timesteps=8, num_inference_steps=4, guidance_scale=guidance_scale)
     model = _dit().eval()
     cond = torch.randn(2, 4, 16)
     a = objective.sample(model, (2, 15, 7), cond, generator=torch.Generator().manual_seed(1))
@@ -105,9 +105,16 @@ def test_ddim_sample_shapes_and_seeded_determinism(guidance_scale: float) -> Non
     assert not torch.allclose(a, c)
 
 
-def test_ddim_steps_are_capped_at_training_timesteps() -> None:
-    objective = DiffusionObjective(num_train_timesteps=8, num_inference_steps=10)
-    assert objective.num_inference_steps == 8
+def test_ddim_steps_beyond_the_training_timesteps_are_refused() -> None:
+    with pytest.raises(ValueError, match=r"num_inference_steps=10 must be in \[1, num_train_timesteps=8\]"):
+        DiffusionObjective(num_train_timesteps=8, num_inference_steps=10)
+    objective = DiffusionObjective(num_train_timesteps=8, num_inference_steps=8)
+    with pytest.raises(ValueError, match="num_inference_steps=9"):
+        objective.sample(ConstantDenoiser(0.0), (1, 4, 7), torch.zeros(1, 1, 16), num_inference_steps=9)
+
+
+def test_ddim_walks_from_the_noisiest_timestep() -> None:
+    objective = DiffusionObjective(num_train_timesteps=8, num_inference_steps=8)
     denoiser = ConstantDenoiser(0.0)
     objective.sample(denoiser, (1, 4, 7), torch.zeros(1, 1, 16))
     assert [int(t[0]) for t in denoiser.timesteps] == [7, 6, 5, 4, 3, 2, 1, 0]
@@ -135,14 +142,14 @@ def test_ddim_recovers_data_from_an_oracle_denoiser(steps: int) -> None:
 
 def test_clipping_keeps_samples_bounded_at_the_terminal_noise_level() -> None:
     """With alpha_bar_7 = 3.7e-5 an imperfect noise prediction explodes unclipped DDIM; clipping bounds it."""
-    assert DiffusionObjective().noise_scheduler.alphas_cumprod[-1] < 1e-4
+    assert DiffusionObjective(num_train_timesteps=8, num_inference_steps=8).noise_scheduler.alphas_cumprod[-1] < 1e-4
     cond = torch.zeros(2, 1, 16)
     gen = torch.Generator().manual_seed(0)
-    unclipped = DiffusionObjective(clip_sample_range=None).sample(
+    unclipped = DiffusionObjective(num_train_timesteps=8, num_inference_steps=8, clip_sample_range=None).sample(
         ConstantDenoiser(0.0), (2, 15, 7), cond, generator=gen
     )
     gen = torch.Generator().manual_seed(0)
-    clipped = DiffusionObjective(clip_sample_range=1.0).sample(
+    clipped = DiffusionObjective(num_train_timesteps=8, num_inference_steps=8, clip_sample_range=1.0).sample(
         ConstantDenoiser(0.0), (2, 15, 7), cond, generator=gen
     )
     assert unclipped.abs().max() > 50

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from lerobot_subgoalvla.policies.subgoalvla.config_components import CrossAttentionConfig
 from lerobot_subgoalvla.policies.subgoalvla.proprio_attention import (
     ProprioCrossAttention,
     ProprioCrossAttentionBlock,
@@ -13,6 +14,8 @@ from lerobot_subgoalvla.policies.subgoalvla.proprio_attention import (
 )
 
 B, Q, P, S, E, D = 2, 6, 15, 10, 24, 16
+SIZES = {"proprio_dim": P, "num_queries": Q, "encoder_dim": E, "dim": D}
+ATTENTION = CrossAttentionConfig(num_layers=2, num_heads=4, mlp_ratio=2.0, dropout=0.0)
 
 
 def _append_padding(hidden: torch.Tensor, mask: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -37,9 +40,7 @@ def test_block_residual_structure_and_shapes() -> None:
 
 @pytest.mark.parametrize("name", ["proprio_xattn", "mean", "max", "attn"])
 def test_padding_tokens_do_not_change_the_features(name: str) -> None:
-    module = build_aggregator(
-        name, P, Q, E, D, num_layers=2, num_heads=4, mlp_ratio=2.0, dropout=0.0, top_k=4
-    )
+    module = build_aggregator(name, **SIZES, attention=ATTENTION, top_k=4)
     module.eval()
     proprio, hidden = torch.randn(B, Q, P), torch.randn(B, S, E)
     mask = torch.ones(B, S, dtype=torch.bool)
@@ -99,4 +100,4 @@ def test_short_sequences_mark_missing_selections_invalid() -> None:
 
 def test_unknown_aggregation_is_rejected() -> None:
     with pytest.raises(ValueError, match="proprio_xattn, mean, max, attn"):
-        build_aggregator("median", P, Q, E, D, 1, 4, 2.0, 0.0, 4)
+        build_aggregator("median", **SIZES, attention=ATTENTION, top_k=4)

@@ -7,8 +7,8 @@ chain_stop)`` exactly once; disjoint chain ranges shard an evaluation across pro
 single-task mode (``task=<one of the 34 task names>``) there is one ``task_id``, the task's CALVIN id, and each
 episode starts from a random valid state drawn from the episode's seed.
 
-All task_ids share the simulators: each task_id is a view (``_TaskView``) on one lazily built vector env per
-evaluating thread (``_SharedVectorEnvs``); a chain's view pins its ``chain_id`` into every ``reset``.
+All task_ids share the simulators: each task_id is a view (``vector.TaskView``) on one lazily built vector env per
+evaluating thread (``vector.SharedVectorEnvs``); a chain's view pins its ``chain_id`` into every ``reset``.
 ``lerobot-eval`` builds all 1000 task_ids up front and evaluates them one after the other (or
 ``max_parallel_tasks`` at a time, one thread each), so one set of simulators (and, with async envs, one pool of
 worker processes) per thread serves all chains, instead of 1000 of them being started, or kept alive.
@@ -16,34 +16,23 @@ worker processes) per thread serves all chains, instead of 1000 of them being st
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
 
-import gymnasium as gym
-from gymnasium.vector.utils import batch_space
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
-from lerobot.envs.utils import FreezeAfterEpisodeEnd
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
 from lerobot_subgoalvla.calvin_vocab import CALVIN_FPS, TASK_NAMES
-
-#: The long-horizon multi-task language-control protocol: one episode = one chain of five subtasks.
-LH_MTLC = "lh_mtlc"
-#: Number of chains of CALVIN's official evaluation (calvin-spec 4.1).
-NUM_EVAL_CHAINS = 1000
-SCENES: tuple[str, ...] = ("procedural", "calvin_A", "calvin_B", "calvin_C", "calvin_D")
-ACTION_MODES: tuple[str, ...] = ("relative", "absolute")
-#: CALVIN's per-subtask step budget EP_LEN (calvin-spec 4.3).
-CALVIN_EP_LEN = 360
-#: ``gymnasium.make(GYM_ID, task=..., ...)`` builds a ``CalvinEnv``; no TimeLimit wrapper, the env ends its own
-#: episodes (per-subtask budgets), and ``_max_episode_steps`` is set on the env itself.
-GYM_ID = "lerobot_subgoalvla/Calvin-v0"
-if GYM_ID not in gym.registry:
-    gym.register(GYM_ID, entry_point="lerobot_subgoalvla.envs.calvin.env:CalvinEnv")
+from lerobot_subgoalvla.envs.calvin.protocol import (
+    ACTION_MODES,
+    CALVIN_EP_LEN,
+    LH_MTLC,
+    NUM_EVAL_CHAINS,
+    SCENES,
+)
+from lerobot_subgoalvla.envs.calvin.vector import SharedVectorEnvs, TaskView, make_frozen_env
 
 
 def _default_features() -> dict[str, PolicyFeature]:
@@ -186,109 +175,9 @@ class CalvinEnvConfig(EnvConfig):
         probe = CalvinEnv(**kwargs)  # cheap: the simulator is created on the first reset
         spaces = (probe.observation_space, probe.action_space, dict(probe.metadata))
         probe.close()
-        shared = _SharedVectorEnvs(
+        shared = SharedVectorEnvs(
             [partial(make_frozen_env, **kwargs)] * n_envs, use_async_envs and n_envs > 1
         )
         return {
-            self.type: {task_id: _TaskView(shared, options, *spaces) for task_id, options in pinned.items()}
+            self.type: {task_id: TaskView(shared, options, *spaces) for task_id, options in pinned.items()}
         }
-
-
-def make_frozen_env(**kwargs: Any) -> gym.Env:
-    """A ``CalvinEnv(**kwargs)`` that stops simulating once its episode ended (LeRobot's FreezeAfterEpisodeEnd).
-
-    Module-level so that ``functools.partial(make_frozen_env, ...)`` pickles with the standard pickle, as
-    forkserver workers need (plugin guide pitfall 21).
-    """
-    from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
-
-    return FreezeAfterEpisodeEnd(CalvinEnv(**kwargs))
-
-
-class _SharedVectorEnvs:
-    """One Sync/AsyncVectorEnv per calling thread, built on first use and shared by all task_id views.
-
-    ``lerobot-eval`` runs task_ids sequentially in one thread, or ``max_parallel_tasks`` at a time in a thread
-    pool; keying by thread gives each concurrently evaluated task its own simulators. Autoreset is
-    ``NEXT_STEP`` with ``FreezeAfterEpisodeEnd`` sub-envs, as LeRobot recommends (plugin guide 3.2).
-    """
-
-    def __init__(self, env_fns: list[Callable[[], gym.Env]], use_async: bool) -> None:
-        self.env_fns = env_fns
-        self.use_async = use_async
-        self._envs: dict[int, gym.vector.VectorEnv] = {}
-        self._lock = threading.Lock()
-
-    @property
-    def num_alive(self) -> int:
-        """How many vector envs (sets of simulators or worker pools) exist now."""
-        return len(self._envs)
-
-    def get(self) -> gym.vector.VectorEnv:
-        """The calling thread's vector env (built now if it has none)."""
-        key = threading.get_ident()
-        with self._lock:
-            if key not in self._envs:
-                mode = gym.vector.AutoresetMode.NEXT_STEP
-                if self.use_async:
-                    self._envs[key] = gym.vector.AsyncVectorEnv(
-                        self.env_fns, context="forkserver", autoreset_mode=mode
-                    )
-                else:
-                    self._envs[key] = gym.vector.SyncVectorEnv(self.env_fns, autoreset_mode=mode)
-            return self._envs[key]
-
-    def close(self) -> None:
-        """Close every vector env; a later use builds a new one."""
-        with self._lock:
-            envs, self._envs = list(self._envs.values()), {}
-        for env in envs:
-            env.close()
-
-
-class _TaskView:
-    """The vector env of one task_id: the shared simulators, with this task's options pinned into ``reset``.
-
-    Quacks like the ``VectorEnv`` that ``lerobot-eval``'s rollout uses (``num_envs``, spaces, ``metadata``,
-    ``unwrapped``, ``reset``, ``step``, ``call``, ``get_attr``, ``render``, ``close``).
-    """
-
-    def __init__(
-        self,
-        shared: _SharedVectorEnvs,
-        reset_options: dict[str, Any],
-        single_observation_space: gym.Space,
-        single_action_space: gym.Space,
-        metadata: dict[str, Any],
-    ) -> None:
-        self._shared = shared
-        self._reset_options = reset_options
-        self.num_envs = len(shared.env_fns)
-        self.single_observation_space = single_observation_space
-        self.single_action_space = single_action_space
-        self.observation_space = batch_space(single_observation_space, self.num_envs)
-        self.action_space = batch_space(single_action_space, self.num_envs)
-        self.metadata = metadata
-
-    @property
-    def unwrapped(self) -> _TaskView:
-        return self
-
-    def reset(self, *, seed: Any = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
-        return self._shared.get().reset(seed=seed, options={**(options or {}), **self._reset_options})
-
-    def step(self, actions: Any) -> tuple:
-        return self._shared.get().step(actions)
-
-    def call(self, name: str, *args: Any, **kwargs: Any) -> tuple:
-        return self._shared.get().call(name, *args, **kwargs)
-
-    def get_attr(self, name: str) -> tuple:
-        return self._shared.get().get_attr(name)
-
-    def render(self) -> tuple:
-        return self._shared.get().render()
-
-    def close(self) -> None:
-        """Close the shared vector envs (``close_envs`` closes every view; later use rebuilds them)."""
-        self._shared.close()

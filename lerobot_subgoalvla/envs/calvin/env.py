@@ -36,27 +36,25 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from lerobot.envs.utils import NEW_ROLLOUT_OPTION
 
 from lerobot_subgoalvla.calvin_vocab import CALVIN_FPS, EVAL_INSTRUCTIONS, TASK_NAMES
-from lerobot_subgoalvla.envs.calvin import chains as calvin_chains
-from lerobot_subgoalvla.envs.calvin.configs import (
+from lerobot_subgoalvla.envs.calvin.evaluation import chains as calvin_chains
+from lerobot_subgoalvla.envs.calvin.expert.start_states import sample_start_state
+from lerobot_subgoalvla.envs.calvin.oracle.tasks import TaskOracle
+from lerobot_subgoalvla.envs.calvin.protocol import (
     ACTION_MODES,
     CALVIN_EP_LEN,
+    CHAIN_LENGTH,
     LH_MTLC,
     NUM_EVAL_CHAINS,
     SCENES,
 )
-from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
-from lerobot_subgoalvla.envs.calvin.start_states import sample_start_state
-from lerobot_subgoalvla.envs.calvin.tasks import TaskOracle
+from lerobot_subgoalvla.envs.calvin.sim.scene import SCENE_OBS_DIM
+from lerobot_subgoalvla.envs.calvin.sim.simulation import ROBOT_OBS_DIM, CalvinSimulation
+from lerobot_subgoalvla.envs.calvin.vector import NEW_ROLLOUT_OPTION
 
 logger = logging.getLogger(__name__)
 
-#: Subtasks per evaluation chain (spec 4.1).
-CHAIN_LENGTH = 5
-ROBOT_OBS_DIM = 15
-SCENE_OBS_DIM = 24
 ACTION_DIM = 7
 
 

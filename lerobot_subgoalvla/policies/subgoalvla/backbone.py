@@ -21,13 +21,12 @@ image-placeholder facts from the model config alone (no weights); ``tokenize_ins
 with the ``<image>`` placeholder expanded to one id per image token; ``prepare_pixel_values`` - the two cameras side by
 side, resized to the vision tower's size and normalised with its statistics.
 
-Dimension legend: ``B`` batch, ``L`` token sequence (image placeholders + instruction), ``S`` = L VLM tokens,
-``D`` LLM hidden size, ``H, W`` camera image size, ``R`` vision-tower image size.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``S`` VLM tokens (image placeholders + instruction),
+``E`` LLM hidden size, ``H, W`` camera image size, ``I`` vision-tower image side.
 """
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
 import torch
@@ -50,26 +49,10 @@ from transformers import (
 from transformers.utils.constants import OPENAI_CLIP_MEAN, OPENAI_CLIP_STD
 
 from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS, TASK_NAMES, TRAINING_ANNOTATIONS
-
-logger = logging.getLogger(__name__)
+from lerobot_subgoalvla.policies.subgoalvla.config_components import TinyLlavaDims
 
 PAD_TOKEN, UNK_TOKEN, IMAGE_TOKEN = "<pad>", "<unk>", "<image>"
 _DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}
-
-
-@dataclass(frozen=True)
-class TinyLlavaDims:
-    """Dimensions of the randomly initialised tiny LLaVA (CLIP vision tower + LLaMA decoder)."""
-
-    text_hidden_size: int = 32
-    text_num_layers: int = 4
-    text_num_heads: int = 4
-    text_intermediate_size: int = 64
-    vision_hidden_size: int = 32
-    vision_num_layers: int = 2
-    vision_num_heads: int = 4
-    image_size: int = 32
-    patch_size: int = 8
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -149,10 +132,18 @@ def build_tiny_llava_config(dims: TinyLlavaDims) -> LlavaConfig:
     )
 
 
+def _required_tiny(tiny: TinyLlavaDims | None) -> TinyLlavaDims:
+    if tiny is None:
+        raise ValueError(
+            "a tiny backbone (name_or_path=None) needs its TinyLlavaDims (BackboneConfig.tiny_dims())"
+        )
+    return tiny
+
+
 def load_vlm_config(name_or_path: str | None, tiny: TinyLlavaDims | None = None) -> PretrainedConfig:
     """The VLM's config without its weights (``AutoConfig`` for checkpoints, ``build_tiny_llava_config`` else)."""
     if name_or_path is None:
-        return build_tiny_llava_config(tiny or TinyLlavaDims())
+        return build_tiny_llava_config(_required_tiny(tiny))
     return AutoConfig.from_pretrained(name_or_path)
 
 
@@ -163,7 +154,7 @@ class VLMInputSpec:
     Attributes:
         image_token_id: id of the image placeholder token in ``input_ids``.
         num_image_tokens: placeholders per image = visual tokens the vision tower + projector produce.
-        image_size: R, the vision tower's square input size (336 for CLIP ViT-L/14-336, 384 for SigLIP).
+        image_size: I, the vision tower's square input size (336 for CLIP ViT-L/14-336, 384 for SigLIP).
         image_mean, image_std: per-channel normalisation of the vision tower.
     """
 
@@ -204,7 +195,7 @@ def tokenize_instructions(
 
     The image placeholder is written as ``num_image_tokens`` copies of its id (LLaVA replaces each by one visual
     token). Instructions are truncated/right-padded to ``max_length`` tokens so every batch has the same length
-    ``L = [1 +] num_image_tokens + max_length``; causal attention means valid tokens never see the right padding.
+    ``S = [1 +] num_image_tokens + max_length``; causal attention means valid tokens never see the right padding.
 
     Args:
         tokenizer: from ``load_tokenizer``.
@@ -213,7 +204,7 @@ def tokenize_instructions(
         spec: the VLM's input facts.
 
     Returns:
-        input_ids (B, L) int64 and attention_mask (B, L) int64 (1 = valid).
+        input_ids (B, S) int64 and attention_mask (B, S) int64 (1 = valid).
     """
     text = tokenizer(
         [instruction.strip() for instruction in instructions],
@@ -228,8 +219,8 @@ def tokenize_instructions(
     if tokenizer.bos_token_id is not None:
         prefix = [tokenizer.bos_token_id, *prefix]
     prefix_ids = torch.tensor(prefix, dtype=torch.long).expand(b, -1)
-    input_ids = torch.cat([prefix_ids, text["input_ids"].long()], dim=1)  # (B, L)
-    attention_mask = torch.cat([torch.ones_like(prefix_ids), text["attention_mask"].long()], dim=1)  # (B, L)
+    input_ids = torch.cat([prefix_ids, text["input_ids"].long()], dim=1)  # (B, S)
+    attention_mask = torch.cat([torch.ones_like(prefix_ids), text["attention_mask"].long()], dim=1)  # (B, S)
     return input_ids, attention_mask
 
 
@@ -254,7 +245,7 @@ def prepare_pixel_values(
         image_mean, image_std: 3 channel statistics of the vision tower.
 
     Returns:
-        (B, 3, R, R) normalised pixel values.
+        (B, 3, I, I) normalised pixel values.
     """
     left = image_size // 2
     sizes = ((image_size, left), (image_size, image_size - left))
@@ -262,7 +253,7 @@ def prepare_pixel_values(
         F.interpolate(view.float(), size=size, mode="bilinear", align_corners=False, antialias=True)
         for view, size in zip((static, gripper), sizes, strict=True)
     ]
-    pixels = torch.cat(views, dim=-1)  # (B, 3, R, R)
+    pixels = torch.cat(views, dim=-1)  # (B, 3, I, I)
     mean = torch.tensor(image_mean, device=pixels.device).view(1, 3, 1, 1)
     std = torch.tensor(image_std, device=pixels.device).view(1, 3, 1, 1)
     return (pixels - mean) / std
@@ -314,7 +305,7 @@ class VLMBackbone(nn.Module):
             raise ValueError("VLMBackbone: give either tiny dimensions or a vlm_config, not both")
         dtype = _DTYPES[torch_dtype] if isinstance(torch_dtype, str) else torch_dtype
         if name_or_path is None and vlm_config is None:
-            vlm_config = build_tiny_llava_config(tiny or TinyLlavaDims())
+            vlm_config = build_tiny_llava_config(_required_tiny(tiny))
         self.vlm = _load_base_vlm(name_or_path, vlm_config, dtype)
         for part in ("vision_tower", "multi_modal_projector", "language_model"):
             if not hasattr(self.vlm, part):
@@ -369,7 +360,7 @@ class VLMBackbone(nn.Module):
         return self.vlm.language_model.get_input_embeddings().weight.dtype
 
     def prepare_pixel_values(self, static: Tensor, gripper: Tensor) -> Tensor:
-        """``prepare_pixel_values`` with this backbone's image size and statistics. Returns (B, 3, R, R)."""
+        """``prepare_pixel_values`` with this backbone's image size and statistics. Returns (B, 3, I, I)."""
         spec = self.input_spec
         return prepare_pixel_values(static, gripper, spec.image_size, spec.image_mean, spec.image_std)
 
@@ -379,12 +370,12 @@ class VLMBackbone(nn.Module):
         """Hidden states of LLM layer k.
 
         Args:
-            input_ids: (B, L) from ``tokenize_instructions`` (image placeholders included).
-            attention_mask: (B, L), 1/True = valid token.
-            pixel_values: (B, 3, R, R) from ``prepare_pixel_values``.
+            input_ids: (B, S) from ``tokenize_instructions`` (image placeholders included).
+            attention_mask: (B, S), 1/True = valid token.
+            pixel_values: (B, 3, I, I) from ``prepare_pixel_values``.
 
         Returns:
-            hidden (B, S=L, D) = H[k] and mask (B, S) bool, True = valid.
+            hidden (B, S, E) = H[k] and mask (B, S) bool, True = valid.
         """
         out = self.vlm(
             input_ids=input_ids,

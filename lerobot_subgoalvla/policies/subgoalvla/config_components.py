@@ -8,6 +8,7 @@ The paper's values and the choices made where it is inconsistent are documented 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,6 +17,25 @@ def require_positive(name: str, value: int | float | None) -> None:
     """Raise one line naming ``--policy.<name>`` unless ``value`` is a positive number."""
     if value is None or value <= 0:
         raise ValueError(f"--policy.{name} must be positive, got {value!r}")
+
+
+@dataclass(frozen=True)
+class TinyLlavaDims:
+    """Dimensions of the randomly initialised tiny LLaVA (CLIP vision tower + LLaMA decoder).
+
+    The values come from the preset (``PRESET_VALUES``) through ``BackboneConfig.tiny_dims``; there are no defaults
+    here, so the preset table is the one place that sizes a tiny backbone.
+    """
+
+    text_hidden_size: int
+    text_num_layers: int
+    text_num_heads: int
+    text_intermediate_size: int
+    vision_hidden_size: int
+    vision_num_layers: int
+    vision_num_heads: int
+    image_size: int
+    patch_size: int
 
 
 @dataclass
@@ -65,17 +85,13 @@ class BackboneConfig:
     @property
     def tiny_architecture_fields(self) -> tuple[str, ...]:
         """Names of the fields that describe the tiny random LLaVA (None for pretrained backbones)."""
-        return (
-            "text_hidden_size",
-            "text_num_layers",
-            "text_num_heads",
-            "text_intermediate_size",
-            "vision_hidden_size",
-            "vision_num_layers",
-            "vision_num_heads",
-            "image_size",
-            "patch_size",
-        )
+        return tuple(f.name for f in dataclasses.fields(TinyLlavaDims))
+
+    def tiny_dims(self) -> TinyLlavaDims | None:
+        """The tiny LLaVA's dimensions; None for a pretrained backbone (``name_or_path`` set)."""
+        if self.name_or_path is not None:
+            return None
+        return TinyLlavaDims(**{name: getattr(self, name) for name in self.tiny_architecture_fields})
 
 
 @dataclass

@@ -37,7 +37,6 @@ Where the paper is inconsistent this module follows the more specific statement 
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -54,8 +53,6 @@ from lerobot_subgoalvla.policies.subgoalvla.config_components import (
     require_positive,
 )
 from lerobot_subgoalvla.policies.subgoalvla.schedule import TwoStageCosineSchedulerConfig
-
-logger = logging.getLogger(__name__)
 
 # Batch keys of the data contract: the converter writes them, the env provides cameras and state at evaluation.
 STATIC_CAMERA_KEY = "observation.images.static"

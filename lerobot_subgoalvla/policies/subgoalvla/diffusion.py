@@ -14,29 +14,27 @@ Choices where the paper is loose (also in docs/model.md):
   so one expensive backbone pass feeds ``R`` cheap denoiser passes.
 - Label dropout p = 0.1 is drawn per repeated sample; the DiT swaps the condition for its learned null token.
 - DDIM with 10 steps but only 8 training timesteps (appendix B.2 vs tables 6-7): DDIM can only visit timesteps that
-  exist, and diffusers rejects ``num_inference_steps > num_train_timesteps``. We cap the number of DDIM steps at the
-  number of training timesteps (10 -> 8, i.e. every training timestep once, a deterministic DDIM walk) and log it.
+  exist, so ``num_inference_steps > num_train_timesteps`` is an error, here as in the config (which rejects it
+  first, with the flag names). The default walks every one of the 8 training timesteps once (docs/model.md has the
+  measurement behind T = 8; T = 100 with DDIM 10 is the other reading, one flag each).
 - Clipping: the 8-step squared-cosine schedule ends at alpha_bar_7 = 3.7e-5, so DDIM's first estimate of the clean
   sample, ``(x - sqrt(1 - abar) eps_hat) / sqrt(abar)``, multiplies the noise-prediction error by 163 and the walk
   diverges (a tiny model's samples reach 1e4). The sampler therefore clips that estimate to
   ``[-clip_sample_range, clip_sample_range]`` (diffusers' ``clip_sample``), the bound of the normalised targets
   (1 for min/max-normalised actions, as LeRobot's Diffusion Policy does). ``None`` disables clipping.
 
-Dimension legend: ``B`` batch, ``R`` repeats, ``T`` tokens (trace steps or action steps), ``X`` token features,
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``R`` repeats, ``T`` tokens (trace steps or action steps), ``X`` token features,
 ``Tc`` conditioning tokens, ``Dc`` conditioning width.
 """
 
 from __future__ import annotations
 
-import logging
 from typing import Protocol
 
 import torch
 from diffusers import DDIMScheduler, DDPMScheduler
 from einops import repeat
 from torch import Tensor
-
-logger = logging.getLogger(__name__)
 
 
 class Denoiser(Protocol):
@@ -56,9 +54,9 @@ class DiffusionObjective:
     """Noise schedule, training loss and guided DDIM sampler for one diffusion head.
 
     Args:
-        num_train_timesteps: T, diffusion steps of the forward process (8 in tables 6-7).
+        num_train_timesteps: T, diffusion steps of the forward process (``DiTHeadConfig.num_train_timesteps``).
+        num_inference_steps: DDIM steps at inference, at most T (``DiTHeadConfig.num_inference_steps``).
         beta_schedule: diffusers beta schedule name; "squaredcos_cap_v2" is the squared-cosine alpha-bar schedule.
-        num_inference_steps: DDIM steps at inference (10 in appendix B.2); capped at ``num_train_timesteps``.
         guidance_scale: classifier-free guidance scale s (1.0 = purely conditional, no extra forward pass).
         repeats: R, repeated diffusion steps per sample in training (8 in table 8).
         l2_weight: lambda of the l2 penalty on predictions (0.001 in appendix B.1).
@@ -68,9 +66,10 @@ class DiffusionObjective:
 
     def __init__(
         self,
-        num_train_timesteps: int = 8,
+        *,
+        num_train_timesteps: int,
+        num_inference_steps: int,
         beta_schedule: str = "squaredcos_cap_v2",
-        num_inference_steps: int = 10,
         guidance_scale: float = 1.0,
         repeats: int = 8,
         l2_weight: float = 1e-3,
@@ -97,25 +96,20 @@ class DiffusionObjective:
             clip_sample_range=1.0 if clip_sample_range is None else clip_sample_range,
         )
         self.num_train_timesteps = num_train_timesteps
-        self.num_inference_steps = self.effective_inference_steps(num_inference_steps)
+        self.num_inference_steps = self.checked_inference_steps(num_inference_steps)
         self.guidance_scale = guidance_scale
         self.repeats = repeats
         self.l2_weight = l2_weight
         self.cond_dropout_prob = cond_dropout_prob
 
-    def effective_inference_steps(self, requested: int) -> int:
-        """DDIM steps actually run: ``requested`` capped at the number of training timesteps (logged)."""
-        if requested < 1:
-            raise ValueError(f"num_inference_steps must be >= 1, got {requested}")
-        if requested > self.num_train_timesteps:
-            logger.info(
-                "DDIM: %d inference steps requested but only %d training timesteps exist; using %d",
-                requested,
-                self.num_train_timesteps,
-                self.num_train_timesteps,
+    def checked_inference_steps(self, steps: int) -> int:
+        """``steps`` if DDIM can take that many steps (1..T); raises ValueError otherwise."""
+        if not 1 <= steps <= self.num_train_timesteps:
+            raise ValueError(
+                f"num_inference_steps={steps} must be in [1, num_train_timesteps={self.num_train_timesteps}] "
+                "(DDIM skips training timesteps, it cannot add any)"
             )
-            return self.num_train_timesteps
-        return requested
+        return steps
 
     def compute_loss(
         self,
@@ -204,7 +198,7 @@ class DiffusionObjective:
             denoiser: the noise-prediction network.
             shape: (B, T, X) of the sample.
             cond: (B, Tc, Dc) conditioning features; cond_mask (B, Tc) bool or None.
-            num_inference_steps: DDIM steps (default: the objective's, capped at the training timesteps).
+            num_inference_steps: DDIM steps, at most T (default: the objective's).
             guidance_scale: CFG scale s (default: the objective's).
             generator: RNG for the initial noise (None = global RNG).
 
@@ -214,7 +208,7 @@ class DiffusionObjective:
         steps = (
             self.num_inference_steps
             if num_inference_steps is None
-            else self.effective_inference_steps(num_inference_steps)
+            else self.checked_inference_steps(num_inference_steps)
         )
         scale = self.guidance_scale if guidance_scale is None else guidance_scale
         x = torch.randn(shape, device=cond.device, dtype=cond.dtype, generator=generator)

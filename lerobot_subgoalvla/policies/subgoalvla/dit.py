@@ -21,7 +21,7 @@ The network is a pure denoiser ``f(x_noisy, t, cond) -> eps_hat``; schedules, lo
 ``TimestepEmbedder``, adaLN-zero blocks, an adaLN ``FinalLayer`` and ``initialize_weights`` zeroing the modulation
 so that every block starts as the identity and the output starts at exactly zero.
 
-Dimension legend: ``B`` batch, ``T`` input tokens (trace steps M or action steps N), ``X`` input feature size (p or
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``T`` input tokens (trace steps M or action steps N), ``X`` input feature size (p or
 A), ``Tc`` conditioning tokens, ``Dc`` conditioning width, ``D`` DiT width.
 """
 
@@ -76,16 +76,15 @@ class TimestepEmbedder(nn.Module):
 class DiTBlock(nn.Module):
     """Pre-LN self-attention + MLP block with adaLN-zero modulation (shift/scale/gate for both sub-layers)."""
 
-    def __init__(self, hidden_dim: int, num_heads: int, mlp_ratio: float, dropout: float) -> None:
+    def __init__(self, hidden_dim: int, num_heads: int, mlp_ratio: float) -> None:
         super().__init__()
         self.norm1 = nn.LayerNorm(hidden_dim, elementwise_affine=False, eps=1e-6)
-        self.attn = nn.MultiheadAttention(hidden_dim, num_heads, dropout=dropout, batch_first=True)
+        self.attn = nn.MultiheadAttention(hidden_dim, num_heads, batch_first=True)
         self.norm2 = nn.LayerNorm(hidden_dim, elementwise_affine=False, eps=1e-6)
         mlp_dim = int(hidden_dim * mlp_ratio)
         self.mlp = nn.Sequential(
             nn.Linear(hidden_dim, mlp_dim),
             nn.GELU(approximate="tanh"),
-            nn.Dropout(dropout),
             nn.Linear(mlp_dim, hidden_dim),
         )
         self.adaLN_modulation = nn.Sequential(nn.SiLU(), nn.Linear(hidden_dim, 6 * hidden_dim))  # noqa: N815
@@ -126,7 +125,9 @@ class DiT(nn.Module):
         depth: number of DiT blocks (12 for DiT-B).
         num_heads: attention heads (paper table 5: 12; section 5.1 says 8 - see docs/model.md).
         mlp_ratio: MLP expansion of each block.
-        dropout: dropout in attention and MLP.
+
+    No dropout inside the blocks, as in DiT and CogACT's action head: the only regulariser is label dropout
+    (``drop_cond``), which classifier-free guidance needs.
     """
 
     def __init__(
@@ -137,7 +138,6 @@ class DiT(nn.Module):
         depth: int,
         num_heads: int,
         mlp_ratio: float = 4.0,
-        dropout: float = 0.0,
     ) -> None:
         super().__init__()
         if hidden_dim % num_heads:
@@ -149,7 +149,7 @@ class DiT(nn.Module):
         self.null_z = nn.Parameter(torch.zeros(hidden_dim))  # label-dropout token for CFG
         self.z_pool_proj = nn.Linear(hidden_dim, hidden_dim)  # pooled z -> adaLN conditioning
         self.pos_scale = nn.Parameter(torch.ones(()))  # learned global scale of the sinusoidal positions
-        self.blocks = nn.ModuleList(DiTBlock(hidden_dim, num_heads, mlp_ratio, dropout) for _ in range(depth))
+        self.blocks = nn.ModuleList(DiTBlock(hidden_dim, num_heads, mlp_ratio) for _ in range(depth))
         self.final_layer = FinalLayer(hidden_dim, input_dim)
         self.initialize_weights()
 

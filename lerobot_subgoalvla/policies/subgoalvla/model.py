@@ -19,13 +19,13 @@ The batch is already normalised by the processor (state, history and trace share
 their own). Cameras arrive in [0, 1] and are resized/normalised here for the vision tower (on the device).
 
 Dimension legend: ``B`` batch, ``h`` history steps, ``M`` trace steps, ``p`` proprio dim, ``N`` chunk size,
-``A`` action dim, ``L`` tokens, ``S`` VLM tokens (= L), ``E`` VLM hidden size (= cross-attention width).
+``A`` action dim, ``S`` VLM tokens, ``E`` VLM hidden size (= cross-attention width); the package's legend
+(``__init__.py``).
 """
 
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 from collections.abc import Iterator
 
 import torch
@@ -33,7 +33,7 @@ from lerobot.configs import FeatureType, NormalizationMode
 from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
 from torch import Tensor, nn
 
-from lerobot_subgoalvla.policies.subgoalvla.backbone import TinyLlavaDims, VLMBackbone
+from lerobot_subgoalvla.policies.subgoalvla.backbone import VLMBackbone
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
     ACTION_KEY,
     GRIPPER_CAMERA_KEY,
@@ -50,15 +50,6 @@ from lerobot_subgoalvla.policies.subgoalvla.dit import DiT
 from lerobot_subgoalvla.policies.subgoalvla.proprio_attention import build_aggregator
 
 ACTION_IS_PAD_KEY = "action_is_pad"
-
-
-def tiny_backbone_dims(config: SubgoalVLAConfig) -> TinyLlavaDims | None:
-    """The tiny LLaVA dimensions of ``config.backbone``; None for a pretrained backbone."""
-    if config.backbone.name_or_path is not None:
-        return None
-    return TinyLlavaDims(
-        **{f.name: getattr(config.backbone, f.name) for f in dataclasses.fields(TinyLlavaDims)}
-    )
 
 
 def _objective(head: DiTHeadConfig, target_normalization: NormalizationMode) -> DiffusionObjective:
@@ -91,7 +82,14 @@ def _eval_mode(*modules: nn.Module) -> Iterator[None]:
 
 
 def _dit(head: DiTHeadConfig, input_dim: int, cond_dim: int) -> DiT:
-    return DiT(input_dim, cond_dim, head.hidden_size, head.depth, head.num_heads, head.mlp_ratio)
+    return DiT(
+        input_dim,
+        cond_dim,
+        hidden_dim=head.hidden_size,
+        depth=head.depth,
+        num_heads=head.num_heads,
+        mlp_ratio=head.mlp_ratio,
+    )
 
 
 class SubgoalVLAModel(nn.Module):
@@ -109,7 +107,7 @@ class SubgoalVLAModel(nn.Module):
         bb = config.backbone
         if backbone is None:
             backbone = VLMBackbone(
-                bb.name_or_path, bb.layer, bb.freeze_vision_tower, tiny_backbone_dims(config), bb.torch_dtype
+                bb.name_or_path, bb.layer, bb.freeze_vision_tower, bb.tiny_dims(), bb.torch_dtype
             )
         self.backbone = backbone
         self.state_dim = config.input_features[STATE_KEY].shape[-1]
@@ -129,17 +127,15 @@ class SubgoalVLAModel(nn.Module):
         self.generator_objective = _objective(config.generator, norms[FeatureType.ACTION.value])
 
     def _aggregator(self, attn: CrossAttentionConfig, num_queries: int, width: int) -> nn.Module:
+        # The aggregator works at the VLM's width E (its features are the DiT's conditioning tokens).
         return build_aggregator(
             self.config.feature_aggregation,
-            self.state_dim,
-            num_queries,
-            width,
-            width,
-            attn.num_layers,
-            attn.num_heads,
-            attn.mlp_ratio,
-            attn.dropout,
-            self.config.aggregation_top_k,
+            proprio_dim=self.state_dim,
+            num_queries=num_queries,
+            encoder_dim=width,
+            dim=width,
+            attention=attn,
+            top_k=self.config.aggregation_top_k,
         )
 
     def head_parameters(self) -> list[nn.Parameter]:
@@ -153,7 +149,7 @@ class SubgoalVLAModel(nn.Module):
 
         Args:
             batch: ``observation.images.static`` (B, 3, H, W) and ``observation.images.gripper`` (B, 3, h, w) in
-                [0, 1]; ``observation.language.tokens`` (B, L); ``observation.language.attention_mask`` (B, L).
+                [0, 1]; ``observation.language.tokens`` (B, S); ``observation.language.attention_mask`` (B, S).
 
         Returns:
             hidden (B, S, E) float32 and mask (B, S) bool (True = valid).

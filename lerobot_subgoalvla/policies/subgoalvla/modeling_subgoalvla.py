@@ -20,7 +20,8 @@ The policy is thin: the computation lives in ``model.py``; this module does the 
   robots (paper figure 7, ``subgoalvla-render-traces``) without a second model pass.
 - Hub: loading or pushing a Hub id while ``HF_HUB_OFFLINE=1`` fails with one line naming the local alternative.
 
-Dimension legend: ``B`` batch / parallel envs, ``N`` chunk size, ``A`` action dim, ``h`` history, ``p`` proprio dim.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch / parallel envs, ``N`` chunk size, ``A`` action dim,
+``h`` history steps, ``p`` proprio dim.
 """
 
 from __future__ import annotations

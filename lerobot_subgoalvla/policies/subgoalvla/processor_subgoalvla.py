@@ -16,7 +16,8 @@ Images are left in [0, 1] (``VISUAL: IDENTITY``); the model resizes and normalis
 The instruction (``task``) is tokenised here with the backbone's tokenizer, LLaVA style (image placeholders first);
 the step stores only the backbone name / tiny dimensions, so a saved pipeline rebuilds it offline for the tiny model.
 
-Dimension legend: ``B`` batch, ``p`` proprioceptive dim (15), ``h`` history length, ``M`` trace length, ``L`` tokens.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``p`` proprio dim (15), ``h`` history steps, ``M`` trace
+steps, ``S`` VLM tokens.
 """
 
 from __future__ import annotations
@@ -38,21 +39,9 @@ from lerobot.processor import (
 )
 from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
 
-from lerobot_subgoalvla.policies.subgoalvla.backbone import (
-    TinyLlavaDims,
-    VLMInputSpec,
-    load_tokenizer,
-    tokenize_instructions,
-)
+from lerobot_subgoalvla.policies.subgoalvla.config_components import TinyLlavaDims
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import STATE_KEY, SubgoalVLAConfig
 from lerobot_subgoalvla.policies.subgoalvla.proprio_normalization import ProprioNormalizerProcessorStep
-
-
-def tiny_dims_of(config: SubgoalVLAConfig) -> dict[str, int] | None:
-    """The tiny-LLaVA dimensions of ``config.backbone`` as a JSON-able dict (None for a pretrained backbone)."""
-    if config.backbone.name_or_path is not None:
-        return None
-    return {f.name: getattr(config.backbone, f.name) for f in dataclasses.fields(TinyLlavaDims)}
 
 
 @ProcessorStepRegistry.register(name="subgoalvla_tokenizer_processor")
@@ -60,8 +49,8 @@ def tiny_dims_of(config: SubgoalVLAConfig) -> dict[str, int] | None:
 class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
     """Tokenise the instruction(s) in ``complementary_data["task"]`` for the VLM (LLaVA protocol).
 
-    Adds ``observation.language.tokens`` (B, L) int64 (image placeholders + instruction + padding) and
-    ``observation.language.attention_mask`` (B, L) bool.
+    Adds ``observation.language.tokens`` (B, S) int64 (image placeholders + instruction + padding) and
+    ``observation.language.attention_mask`` (B, S) bool.
 
     Args:
         name_or_path: the backbone checkpoint (its tokenizer and image-token facts); None = the tiny backbone.
@@ -76,18 +65,22 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
     tiny_dims: dict[str, int] | None = None
     task_key: str = "task"
     _tokenizer: Any = field(default=None, init=False, repr=False)
-    _spec: VLMInputSpec | None = field(default=None, init=False, repr=False)
+    _spec: Any = field(default=None, init=False, repr=False)  # backbone.VLMInputSpec
 
     def __post_init__(self) -> None:
         if (self.name_or_path is None) == (self.tiny_dims is None):
             raise ValueError("subgoalvla_tokenizer_processor needs exactly one of name_or_path / tiny_dims")
+        # Imported here, not at module level: registering this step (lerobot_subgoalvla.plugin) must not load
+        # transformers; building it does.
+        from lerobot_subgoalvla.policies.subgoalvla.backbone import VLMInputSpec, load_tokenizer
+
         tiny = TinyLlavaDims(**self.tiny_dims) if self.tiny_dims is not None else None
         self._tokenizer = load_tokenizer(self.name_or_path)
         self._spec = VLMInputSpec.load(self.name_or_path, tiny)
 
     @property
     def sequence_length(self) -> int:
-        """L, the length of every tokenised instruction (BOS + image placeholders + max_length)."""
+        """S, the length of every tokenised instruction (BOS + image placeholders + max_length)."""
         bos = int(self._tokenizer.bos_token_id is not None)
         return bos + self._spec.num_image_tokens + self.max_length
 
@@ -103,15 +96,17 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
         )
 
     def observation(self, observation: RobotObservation) -> RobotObservation:
+        from lerobot_subgoalvla.policies.subgoalvla.backbone import tokenize_instructions
+
         input_ids, attention_mask = tokenize_instructions(
             self._tokenizer, self._instructions(), self.max_length, self._spec
         )
         device = next((v.device for v in observation.values() if isinstance(v, torch.Tensor)), None)
         observation = dict(observation)
-        observation[OBS_LANGUAGE_TOKENS] = input_ids.to(device)  # (B, L)
+        observation[OBS_LANGUAGE_TOKENS] = input_ids.to(device)  # (B, S)
         observation[OBS_LANGUAGE_ATTENTION_MASK] = attention_mask.to(
             device=device, dtype=torch.bool
-        )  # (B, L)
+        )  # (B, S)
         return observation
 
     def get_config(self) -> dict[str, Any]:
@@ -130,6 +125,11 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
                 type=FeatureType.LANGUAGE, shape=(self.sequence_length,)
             )
         return features
+
+
+def _tiny_dims_dict(config: SubgoalVLAConfig) -> dict[str, int] | None:
+    dims = config.backbone.tiny_dims()
+    return None if dims is None else dataclasses.asdict(dims)
 
 
 def make_subgoalvla_pre_post_processors(
@@ -158,7 +158,7 @@ def make_subgoalvla_pre_post_processors(
     tokenizer = SubgoalVLATokenizerProcessorStep(
         name_or_path=config.backbone.name_or_path,
         max_length=config.backbone.max_instruction_tokens,
-        tiny_dims=tiny_dims_of(config),
+        tiny_dims=_tiny_dims_dict(config),
     )
     return make_policy_processor_pipelines(
         input_steps=[

@@ -6,6 +6,11 @@ hidden states H[k] of the VLM. Eq. 2 with the pre-normalisation and dropout the 
 
     f = Dropout(MHA(LN_q(Q), LN_kv(H), LN_kv(H))) + Q
     f = Dropout(MLP(LN(f))) + f
+    features = LN_out(f)            after the last block
+
+The final ``LN_out`` is ours too: with pre-normalisation the residual stream is never normalised, and the DiT
+takes these features as conditioning tokens next to its own normalised inputs, so they leave at unit scale
+(as a pre-LN transformer encoder ends with a LayerNorm).
 
 Vocabulary (style guide convention 6): ``hidden_states`` are the query tokens, ``encoder_hidden_states`` the VLM
 tokens and ``encoder_attention_mask`` their padding mask (True = valid), which reaches the attention op as
@@ -26,16 +31,19 @@ proprioceptive tokens themselves (Linear(S_t) or Linear([S_t, G])) are still han
 tokens, so the ablated heads see the same information except for the state-aware selection. Selected tokens pass
 through LayerNorm + Linear to the feature width (mid-layer LLM states have large, uneven norms).
 
-Dimension legend: ``B`` batch, ``Q`` proprio query tokens (h or h+M), ``P`` proprio dim p, ``S`` VLM tokens,
-``E`` VLM width, ``D`` feature width, ``K`` selected tokens.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``Q`` query tokens (h or h+M), ``p`` proprio dim,
+``S`` VLM tokens, ``E`` VLM width, ``D`` feature width, ``K`` selected tokens.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import torch
 from torch import Tensor, nn
+
+if TYPE_CHECKING:
+    from lerobot_subgoalvla.policies.subgoalvla.config_components import CrossAttentionConfig
 
 AggregationName = Literal["proprio_xattn", "mean", "max", "attn"]
 
@@ -96,7 +104,7 @@ class ProprioQueryEmbedding(nn.Module):
         nn.init.normal_(self.step_embedding, std=0.02)
 
     def forward(self, proprio: Tensor) -> Tensor:
-        """Args: proprio (B, Q, P). Returns (B, Q, D)."""
+        """Args: proprio (B, Q, p). Returns (B, Q, D)."""
         if proprio.shape[1] != self.step_embedding.shape[0]:
             raise ValueError(
                 f"expected {self.step_embedding.shape[0]} proprio steps (history [+ trace]), got {proprio.shape[1]}"
@@ -108,7 +116,7 @@ class ProprioCrossAttention(nn.Module):
     """The PCA module: proprio query embedding followed by ``num_layers`` eq.-2 blocks (3 layers, 8 heads).
 
     Args:
-        proprio_dim: P, size of one proprio step.
+        proprio_dim: p, size of one proprio step.
         num_queries: Q, number of proprio steps (h for the planner, h + M for the generator).
         encoder_dim: E, VLM hidden size.
         dim: D, feature width (the paper uses the VLM width, 4096 for LLaMA-7B).
@@ -135,12 +143,12 @@ class ProprioCrossAttention(nn.Module):
             ProprioCrossAttentionBlock(dim, encoder_dim, num_heads, mlp_ratio, dropout)
             for _ in range(num_layers)
         )
-        self.norm_out = nn.LayerNorm(dim)
+        self.norm_out = nn.LayerNorm(dim)  # LN_out of the module docstring
 
     def forward(
         self, proprio: Tensor, encoder_hidden_states: Tensor, encoder_attention_mask: Tensor | None
     ) -> tuple[Tensor, None]:
-        """Args: proprio (B, Q, P); encoder_hidden_states (B, S, E); encoder_attention_mask (B, S) True=valid.
+        """Args: proprio (B, Q, p); encoder_hidden_states (B, S, E); encoder_attention_mask (B, S) True=valid.
 
         Returns:
             features (B, Q, D) and their mask: None, every query token is a valid feature.
@@ -198,7 +206,7 @@ class TopKTokenPooling(nn.Module):
     def forward(
         self, proprio: Tensor, encoder_hidden_states: Tensor, encoder_attention_mask: Tensor | None
     ) -> tuple[Tensor, Tensor]:
-        """Args: proprio (B, Q, P); encoder_hidden_states (B, S, E); encoder_attention_mask (B, S) True=valid.
+        """Args: proprio (B, Q, p); encoder_hidden_states (B, S, E); encoder_attention_mask (B, S) True=valid.
 
         Returns:
             features (B, Q + K, D): proprio tokens then the selected VLM tokens; mask (B, Q + K), False where a
@@ -227,23 +235,29 @@ class TopKTokenPooling(nn.Module):
 
 def build_aggregator(
     name: AggregationName,
+    *,
     proprio_dim: int,
     num_queries: int,
     encoder_dim: int,
     dim: int,
-    num_layers: int,
-    num_heads: int,
-    mlp_ratio: float,
-    dropout: float,
+    attention: CrossAttentionConfig,
     top_k: int,
 ) -> nn.Module:
     """The feature aggregator named by ``feature_aggregation`` (proprio_xattn | mean | max | attn).
 
-    ``num_layers, num_heads, mlp_ratio, dropout`` configure the cross-attention; ``top_k`` the pooling baselines.
+    ``attention`` configures the cross-attention (layers, heads, MLP ratio, dropout); ``top_k`` the pooling
+    baselines.
     """
     if name == "proprio_xattn":
         return ProprioCrossAttention(
-            proprio_dim, num_queries, encoder_dim, dim, num_layers, num_heads, mlp_ratio, dropout
+            proprio_dim,
+            num_queries,
+            encoder_dim,
+            dim,
+            num_layers=attention.num_layers,
+            num_heads=attention.num_heads,
+            mlp_ratio=attention.mlp_ratio,
+            dropout=attention.dropout,
         )
     if name in ("mean", "max", "attn"):
         return TopKTokenPooling(name, proprio_dim, num_queries, encoder_dim, dim, top_k)

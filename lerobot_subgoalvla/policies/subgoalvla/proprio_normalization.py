@@ -19,7 +19,7 @@ leave ``STATE`` features alone (``IDENTITY`` in the policy's normalisation mappi
 no ``lerobot-train --policy.path`` statistics override can normalise a proprioceptive tensor twice or with other
 numbers. :meth:`ProprioNormalizerProcessorStep.decode` inverts it (ghost-robot rendering of traces).
 
-Dimension legend: ``B`` batch, ``p`` proprio dim (15 for CALVIN), ``h`` history steps, ``M`` trace steps.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``p`` proprio dim (15 for CALVIN), ``h`` history steps, ``M`` trace steps.
 """
 
 from __future__ import annotations

@@ -12,10 +12,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lerobot_subgoalvla.envs.calvin.expert_skills import ExpertFailureError, Motion, SkillContext, ray_hits
+from lerobot_subgoalvla.envs.calvin.expert.skills import ExpertFailureError, Motion, SkillContext, ray_hits
 
 if TYPE_CHECKING:
-    from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+    from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 #: Block rest height on the desk (spec 3.4) and CALVIN's "table" sampling band in y (spec 3.3).
 TABLE_BLOCK_Z = 0.46

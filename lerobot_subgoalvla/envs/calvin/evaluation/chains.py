@@ -43,7 +43,7 @@ from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS, TASK_NAMES, check_task
 
 # The symbolic -> simulator mapping lives in chain_scene.py and per-episode results in results.py; both are
 # re-exported here because chains.py is the env's seam (DESIGN.md).
-from lerobot_subgoalvla.envs.calvin.chain_scene import (
+from lerobot_subgoalvla.envs.calvin.evaluation.chain_scene import (
     EVAL_ROBOT_OBS,
     SYMBOLIC_VALUES,
     fnv1_32,
@@ -52,7 +52,7 @@ from lerobot_subgoalvla.envs.calvin.chain_scene import (
 )
 
 # Per-episode results live in results.py; re-exported here because chains.py is the env's seam (DESIGN.md).
-from lerobot_subgoalvla.envs.calvin.results import (
+from lerobot_subgoalvla.envs.calvin.evaluation.results import (
     EpisodeResult,
     append_episode_result,
     atomic_write,
@@ -60,6 +60,7 @@ from lerobot_subgoalvla.envs.calvin.results import (
     merge_results,
     read_episode_results,
 )
+from lerobot_subgoalvla.envs.calvin.protocol import CHAIN_LENGTH
 
 __all__ = [
     "EVAL_ROBOT_OBS", "SYMBOLIC_TASKS", "SYMBOLIC_VALUES", "TASK_CATEGORIES", "Chain", "EpisodeResult",
@@ -72,7 +73,6 @@ logger = logging.getLogger(__name__)
 
 SymbolicState = dict[str, Any]
 
-CHAIN_LENGTH = 5
 _SLIDER_SLOTS = ("slider_right", "slider_left")
 
 

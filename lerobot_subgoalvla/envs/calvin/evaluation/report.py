@@ -30,18 +30,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
-
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
-from lerobot_subgoalvla.envs.calvin.chains import (
-    CHAIN_LENGTH,
+from lerobot_subgoalvla.envs.calvin.evaluation.chains import (
     OneLineArgumentParser,
     configure_cli_logging,
     generate_chains,
     load_chains,
 )
-from lerobot_subgoalvla.envs.calvin.results import (
+from lerobot_subgoalvla.envs.calvin.evaluation.results import (
     NOT_ATTEMPTED,
     SUCCESS,
     EpisodeResult,
@@ -50,6 +46,7 @@ from lerobot_subgoalvla.envs.calvin.results import (
     merge_results,
     read_episode_results,
 )
+from lerobot_subgoalvla.envs.calvin.protocol import CHAIN_LENGTH
 
 logger = logging.getLogger(__name__)
 
@@ -114,6 +111,11 @@ def format_report(report: LongHorizonReport) -> str:
 
 def plot_report(report: LongHorizonReport, path: Path) -> None:
     """Bar charts of LH-1..5 and of per-task success rates, written as a PNG (Agg canvas, no pyplot state)."""
+    from matplotlib.backends.backend_agg import (
+        FigureCanvasAgg,  # here: --help and the text report need no plots
+    )
+    from matplotlib.figure import Figure
+
     fig = Figure(figsize=(12, 6), dpi=100, layout="constrained")
     FigureCanvasAgg(fig)
     lh_ax, task_ax = fig.subplots(1, 2, width_ratios=(1, 2))

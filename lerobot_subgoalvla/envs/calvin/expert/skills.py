@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+    from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 #: Scale of CALVIN's relative actions (spec 1.6): full scale = 2 cm and 0.05 rad per 30 Hz step.
 POS_SCALE = 0.02

@@ -15,9 +15,9 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot.utils.feature_utils import dataset_to_policy_features
 from PIL import Image
 
-from lerobot_subgoalvla import visualize_traces
 from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
+from lerobot_subgoalvla.visualization import render_traces
 
 STATIC, GRIPPER = 64, 32
 N_ACTION_STEPS, STEPS = 3, 6  # two chunks planned
@@ -67,17 +67,17 @@ def env() -> Iterator[CalvinEnv]:
 
 
 def test_rollout_draws_each_planned_trace_over_its_observation(checkpoint, env, monkeypatch) -> None:
-    policy, pre, post = visualize_traces.load_policy(checkpoint)
+    policy, pre, post = render_traces.load_policy(checkpoint)
     drawn: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (trace, plain frame, overlay)
-    render = visualize_traces.render_trace
+    render = render_traces.render_trace
 
     def recording(sim, trace, frame):
         overlay = render(sim, trace, frame)
         drawn.append((trace, frame.copy(), overlay))
         return overlay
 
-    monkeypatch.setattr(visualize_traces, "render_trace", recording)
-    frames = visualize_traces.rollout_with_traces(policy, pre, post, env, num_steps=STEPS, seed=0)
+    monkeypatch.setattr(render_traces, "render_trace", recording)
+    frames = render_traces.rollout_with_traces(policy, pre, post, env, num_steps=STEPS, seed=0)
 
     assert len(frames) == STEPS // N_ACTION_STEPS  # one overlay per planned chunk
     assert all(f.shape == (STATIC, STATIC, 3) and f.dtype == np.uint8 for f in frames)
@@ -85,28 +85,28 @@ def test_rollout_draws_each_planned_trace_over_its_observation(checkpoint, env, 
     trace = policy.last_subgoal_trace
     assert trace is not None and trace.shape == (1, policy.config.subgoal_trace_len, 15)
     # the drawn rows are the last planned trace, un-normalised: back in robot_obs units
-    expected = visualize_traces.unnormalize_state(pre, trace[0])
+    expected = render_traces.unnormalize_state(pre, trace[0])
     np.testing.assert_allclose(drawn[-1][0], expected.numpy(), rtol=1e-6)
     policy.reset()
     assert policy.last_subgoal_trace is None
 
 
 def test_unnormalize_state_inverts_the_preprocessor(checkpoint, tiny_dataset) -> None:
-    _, pre, _ = visualize_traces.load_policy(checkpoint)  # statistics read back from disk
+    _, pre, _ = render_traces.load_policy(checkpoint)  # statistics read back from disk
     frame = tiny_dataset[5]
     state = frame["observation.state"] + 0.3  # a known state, not one of the statistics' own points
     state[3] = math.pi - 0.1  # a roll near the wrap comes back as itself
     observation = {k: frame[k] for k in ("observation.images.static", "observation.images.gripper")}
     normalised = pre({**observation, "observation.state": state, "task": frame["task"]})["observation.state"]
     assert not torch.allclose(normalised[0], state)  # it was normalised
-    torch.testing.assert_close(visualize_traces.unnormalize_state(pre, normalised[0]), state)
+    torch.testing.assert_close(render_traces.unnormalize_state(pre, normalised[0]), state)
 
 
 def test_unnormalize_state_needs_the_proprio_step(checkpoint) -> None:
-    _, pre, _ = visualize_traces.load_policy(checkpoint)
+    _, pre, _ = render_traces.load_policy(checkpoint)
     pre.steps = [step for step in pre.steps if type(step).__name__ != "ProprioNormalizerProcessorStep"]
     with pytest.raises(ValueError, match="0 subgoalvla_proprio_normalizer steps"):
-        visualize_traces.unnormalize_state(pre, torch.zeros(8, 15))
+        render_traces.unnormalize_state(pre, torch.zeros(8, 15))
 
 
 def test_cli_writes_a_png_strip(checkpoint, tmp_path: Path) -> None:
@@ -121,7 +121,7 @@ def test_cli_writes_a_png_strip(checkpoint, tmp_path: Path) -> None:
         "--output",
         str(output),
     ]
-    assert visualize_traces.main(argv) == 0
+    assert render_traces.main(argv) == 0
     strip = np.asarray(Image.open(output))
     assert strip.shape == (STATIC, 2 * STATIC, 3)  # chunks planned at steps 0 and 3
 
@@ -135,6 +135,6 @@ def test_cli_bad_path_is_one_line_and_nonzero(tmp_path: Path, caplog) -> None:
         "--output",
         str(tmp_path / "a.mp4"),
     ]
-    assert visualize_traces.main(argv) == 1
+    assert render_traces.main(argv) == 1
     assert "no config.json" in caplog.text and "pretrained_model" in caplog.text
     assert not (tmp_path / "a.mp4").exists()

@@ -17,13 +17,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS, check_task_name
-from lerobot_subgoalvla.envs.calvin.chain_scene import EVAL_ROBOT_OBS
-from lerobot_subgoalvla.envs.calvin.expert import ScriptedExpert, is_feasible
-from lerobot_subgoalvla.envs.calvin.expert_layout import SceneLayout
-from lerobot_subgoalvla.envs.calvin.expert_skills import ExpertFailureError, Motion, SkillContext
+from lerobot_subgoalvla.envs.calvin.evaluation.chain_scene import EVAL_ROBOT_OBS
+from lerobot_subgoalvla.envs.calvin.expert.layout import SceneLayout
+from lerobot_subgoalvla.envs.calvin.expert.scripted_expert import ScriptedExpert, is_feasible
+from lerobot_subgoalvla.envs.calvin.expert.skills import ExpertFailureError, Motion, SkillContext
 
 if TYPE_CHECKING:
-    from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+    from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 logger = logging.getLogger(__name__)
 

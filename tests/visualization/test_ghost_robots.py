@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 
 from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
-from lerobot_subgoalvla.envs.calvin.trace_render import render_trace, write_trace_media
+from lerobot_subgoalvla.visualization.ghost_robots import render_trace, write_trace_media
 
 SIZE = 48
 

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lerobot_subgoalvla.envs.calvin.expert_skills import (
+from lerobot_subgoalvla.envs.calvin.expert.block_scripts import HOME_YAW
+from lerobot_subgoalvla.envs.calvin.expert.skills import (
     GRIPPER_CLOSE,
     ExpertFailureError,
     Skill,
@@ -17,7 +18,6 @@ from lerobot_subgoalvla.envs.calvin.expert_skills import (
     ray_hits,
     tilted_euler,
 )
-from lerobot_subgoalvla.envs.calvin.expert_tasks import HOME_YAW
 
 #: Unit vector of the switch lever's travel (spec 3.2: 0.088 m of joint = +0.044 y, +0.076 z).
 SWITCH_AXIS = np.array([0.0, 0.5, np.sqrt(3) / 2])

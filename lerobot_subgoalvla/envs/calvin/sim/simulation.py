@@ -30,10 +30,10 @@ import numpy as np
 import pybullet
 from pybullet_utils.bullet_client import BulletClient
 
-from lerobot_subgoalvla.envs.calvin.assets import load_scene_source
-from lerobot_subgoalvla.envs.calvin.cameras import Cameras
-from lerobot_subgoalvla.envs.calvin.robot import ActionMode, PandaRobot
-from lerobot_subgoalvla.envs.calvin.scene import Scene
+from lerobot_subgoalvla.envs.calvin.sim.assets import load_scene_source
+from lerobot_subgoalvla.envs.calvin.sim.cameras import Cameras
+from lerobot_subgoalvla.envs.calvin.sim.robot import ActionMode, PandaRobot
+from lerobot_subgoalvla.envs.calvin.sim.scene import Scene
 
 logger = logging.getLogger(__name__)
 

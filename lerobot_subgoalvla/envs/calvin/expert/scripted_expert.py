@@ -22,10 +22,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from lerobot_subgoalvla.calvin_vocab import check_task_name
-from lerobot_subgoalvla.envs.calvin import expert_fixtures as fixtures
-from lerobot_subgoalvla.envs.calvin import expert_tasks as scripts
-from lerobot_subgoalvla.envs.calvin.expert_layout import SceneLayout
-from lerobot_subgoalvla.envs.calvin.expert_skills import (
+from lerobot_subgoalvla.envs.calvin.expert import block_scripts as scripts
+from lerobot_subgoalvla.envs.calvin.expert import fixture_scripts as fixtures
+from lerobot_subgoalvla.envs.calvin.expert.layout import SceneLayout
+from lerobot_subgoalvla.envs.calvin.expert.skills import (
     GRIPPER_CLOSE,
     GRIPPER_OPEN,
     ExpertFailureError,
@@ -35,7 +35,7 @@ from lerobot_subgoalvla.envs.calvin.expert_skills import (
 )
 
 if TYPE_CHECKING:
-    from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+    from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 logger = logging.getLogger(__name__)
 

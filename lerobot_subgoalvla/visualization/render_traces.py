@@ -33,10 +33,10 @@ from lerobot.envs.utils import preprocess_observation
 from lerobot.policies import get_policy_class, make_pre_post_processors
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
-from lerobot_subgoalvla.envs.calvin.configs import LH_MTLC, SCENES
 from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
-from lerobot_subgoalvla.envs.calvin.trace_render import render_trace, write_trace_media
+from lerobot_subgoalvla.envs.calvin.protocol import LH_MTLC, SCENES
 from lerobot_subgoalvla.policies.subgoalvla.proprio_normalization import ProprioNormalizerProcessorStep
+from lerobot_subgoalvla.visualization.ghost_robots import render_trace, write_trace_media
 
 logger = logging.getLogger(__name__)
 

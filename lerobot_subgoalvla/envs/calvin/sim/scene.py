@@ -29,8 +29,8 @@ import numpy as np
 import pybullet
 from pybullet_utils.bullet_client import BulletClient
 
-from lerobot_subgoalvla.envs.calvin.assets import SceneSource, surface_array
-from lerobot_subgoalvla.envs.calvin.procedural_table import write_procedural_table
+from lerobot_subgoalvla.envs.calvin.sim.assets import SceneSource, surface_array
+from lerobot_subgoalvla.envs.calvin.sim.procedural_table import write_procedural_table
 
 logger = logging.getLogger(__name__)
 

@@ -21,8 +21,8 @@ import numpy as np
 import pybullet_data
 import yaml
 
-from lerobot_subgoalvla.envs.calvin.procedural_table import PROCEDURAL_POINTS
-from lerobot_subgoalvla.envs.calvin.robot import RobotSpec, calvin_robot_spec, procedural_robot_spec
+from lerobot_subgoalvla.envs.calvin.sim.procedural_table import PROCEDURAL_POINTS
+from lerobot_subgoalvla.envs.calvin.sim.robot import RobotSpec, calvin_robot_spec, procedural_robot_spec
 
 SCENES = ("procedural", "calvin_A", "calvin_B", "calvin_C", "calvin_D")
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lerobot_subgoalvla.envs.calvin.expert_skills import (
+from lerobot_subgoalvla.envs.calvin.expert.skills import (
     GRIPPER_CLOSE,
     GRIPPER_OPEN,
     ExpertFailureError,

@@ -33,9 +33,9 @@ from lerobot.utils.io_utils import write_video
 from PIL import Image
 
 from lerobot_subgoalvla.calvin_vocab import CALVIN_FPS
-from lerobot_subgoalvla.envs.calvin import cameras
-from lerobot_subgoalvla.envs.calvin.robot import ARM_JOINTS
-from lerobot_subgoalvla.envs.calvin.simulation import CalvinSimulation
+from lerobot_subgoalvla.envs.calvin.sim import cameras
+from lerobot_subgoalvla.envs.calvin.sim.robot import ARM_JOINTS
+from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 logger = logging.getLogger(__name__)
 
