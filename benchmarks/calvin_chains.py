@@ -2,8 +2,8 @@
 
 Side by side in one run, CPU time (``time.process_time``), medians over ``--repeats``:
 
-* ``reference``: CALVIN's sampler - one ``RandomState.choice(34, 5, replace=False)`` call and one symbolic check
-  per candidate sequence - over the first ``--states`` initial states with the official quota;
+* ``reference``: CALVIN's sampler - one ``RandomState.choice(34, 5, replace=False)`` call and one symbolic
+  check per candidate sequence - over the first ``--states`` initial states with the official quota;
 * ``vectorised``: ``chains._sample_sequences`` (batched masked-rejection draws + transition table) on the same
   states; the sequences must be identical;
 * ``generate_chains(1000)``: the full official list, uncached, once;
@@ -42,15 +42,26 @@ def _cpu(fn) -> tuple[float, object]:
 
 def _info(uid_offset: float) -> dict:
     contact = (0, 0, 2, -1, -1, (0, 0, 0), (0, 0, 0), (0, 0, 1), 0.0, 1.0, 0.0, (1, 0, 0), 0.0, (0, 1, 0))
-    block = {"current_pos": np.array([uid_offset, 0.0, 0.46]), "current_orn": np.array([0.0, 0.0, 0.0, 1.0]),
-             "current_lin_vel": np.zeros(3), "current_ang_vel": np.zeros(3), "contacts": [contact]}  # fmt: skip
-    return {"robot_info": {"uid": 1, "contacts": []},
-            "scene_info": {"fixed_objects": {"table": {"uid": 2, "links": {"base_link": -1, "drawer_link": 3,
-                                                                             "plank_link": 6}}},
-                           "movable_objects": {n: {**block, "uid": u} for n, u in
-                                               (("block_red", 3), ("block_blue", 4), ("block_pink", 5))},
-                           "doors": {"base__slide": {"current_state": 0.0}, "base__drawer": {"current_state": 0.0}},
-                           "lights": {"lightbulb": {"logical_state": 0}, "led": {"logical_state": 0}}}}  # fmt: skip
+    block = {
+        "current_pos": np.array([uid_offset, 0.0, 0.46]),
+        "current_orn": np.array([0.0, 0.0, 0.0, 1.0]),
+        "current_lin_vel": np.zeros(3),
+        "current_ang_vel": np.zeros(3),
+        "contacts": [contact],
+    }
+    return {
+        "robot_info": {"uid": 1, "contacts": []},
+        "scene_info": {
+            "fixed_objects": {
+                "table": {"uid": 2, "links": {"base_link": -1, "drawer_link": 3, "plank_link": 6}}
+            },
+            "movable_objects": {
+                n: {**block, "uid": u} for n, u in (("block_red", 3), ("block_blue", 4), ("block_pink", 5))
+            },
+            "doors": {"base__slide": {"current_state": 0.0}, "base__drawer": {"current_state": 0.0}},
+            "lights": {"lightbulb": {"logical_state": 0}, "led": {"logical_state": 0}},
+        },
+    }
 
 
 def main() -> None:
@@ -70,8 +81,10 @@ def main() -> None:
     chains._chain_plan.cache_clear()
     full_t, _ = _cpu(lambda: chains.generate_chains(1000))
     oracle, start, end = TaskOracle(), _info(0.0), _info(0.05)
-    oracle_t = statistics.median(_cpu(lambda: [oracle.completed_tasks(start, end) for _ in range(100)])[0] / 100
-                                 for _ in range(args.repeats))  # fmt: skip
+    oracle_t = statistics.median(
+        _cpu(lambda: [oracle.completed_tasks(start, end) for _ in range(100)])[0] / 100
+        for _ in range(args.repeats)
+    )
     ref_m, vec_m = statistics.median(ref_t), statistics.median(vec_t)
     print(f"{'measurement':<44} {'CPU s (median)':>15} {'ratio':>8}")
     print(f"{f'reference sampler, {args.states} states x 6 chains':<44} {ref_m:>15.3f} {1.0:>8.1f}")

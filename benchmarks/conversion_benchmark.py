@@ -7,14 +7,16 @@ episode and camera, with the same ``RGBEncoderConfig`` options: no conversion ca
 
 Usage::
 
-    HF_HUB_OFFLINE=1 python benchmarks/conversion_benchmark.py --episodes 8 --frames-per-episode 64 --repeats 2
+    HF_HUB_OFFLINE=1 python benchmarks/conversion_benchmark.py --episodes 8 --frames-per-episode 64 --repeats
+    2
 
-A second reference is LeRobot's writer alone (``create -> add_frame -> save_episode -> finalize`` with streaming
-AV1 encoding, the converter's settings) fed with arrays already in memory: the best any converter built on
-LeRobot's public writer can do per process. The table lists wall time (median of ``--repeats``), frames/s, frames/s per worker, the ratio to the floor
-per worker (target >= 80 %) and the extrapolated time for task_ABC_D's LANG training split (~1.07 M frames:
-17,870 windows, spec 1.7) at that rate. Source frames are CALVIN-sized (200x200 static, 84x84 gripper) with a
-textured, moving image content (not flat colour) so that the encoder does real work.
+A second reference is LeRobot's writer alone (``create -> add_frame -> save_episode -> finalize`` with
+streaming AV1 encoding, the converter's settings) fed with arrays already in memory: the best any converter
+built on LeRobot's public writer can do per process. The table lists wall time (median of ``--repeats``),
+frames/s, frames/s per worker, the ratio to the floor per worker (target >= 80 %) and the extrapolated time
+for task_ABC_D's LANG training split (~1.07 M frames: 17,870 windows, spec 1.7) at that rate. Source frames
+are CALVIN-sized (200x200 static, 84x84 gripper) with a textured, moving image content (not flat colour) so
+that the encoder does real work.
 """
 
 from __future__ import annotations
@@ -67,10 +69,18 @@ def build_source(root: Path, episodes: int, length: int) -> dict[str, np.ndarray
     split_dir = root / "training"
     static, gripper = _frames(episodes * length, 200, rng), _frames(episodes * length, 84, rng)
     for i in range(episodes * length):
-        write_frame(split_dir, i, {
-            "actions": rng.normal(size=7), "rel_actions": rng.uniform(-1, 1, 7), "robot_obs": rng.normal(size=15),
-            "scene_obs": rng.normal(size=24), "rgb_static": static[i], "rgb_gripper": gripper[i],
-        })  # fmt: skip
+        write_frame(
+            split_dir,
+            i,
+            {
+                "actions": rng.normal(size=7),
+                "rel_actions": rng.uniform(-1, 1, 7),
+                "robot_obs": rng.normal(size=15),
+                "scene_obs": rng.normal(size=24),
+                "rgb_static": static[i],
+                "rgb_gripper": gripper[i],
+            },
+        )
     rows = np.array([(e * length, e * length + length - 1) for e in range(episodes)])
     write_segments(split_dir, rows)
     write_language(
@@ -101,7 +111,8 @@ def codec_floor(frames: dict[str, np.ndarray], episodes: int, length: int, out_d
 
 
 def writer_alone(src: Path, out_dir: Path) -> float:
-    """Seconds for LeRobot's writer alone (same settings as the converter) fed with arrays already in memory."""
+    """Seconds for LeRobot's writer alone (same settings as the converter) fed with arrays already in
+    memory."""
     from lerobot.datasets import LeRobotDataset
 
     from lerobot_subgoalvla.datasets_conversion.calvin_format import CalvinSplit
@@ -117,8 +128,15 @@ def writer_alone(src: Path, out_dir: Path) -> float:
     arrays = [episode_arrays(split, episode, options) for episode in episodes]
     features = build_features(arrays[0][STATIC].shape[1:], arrays[0][GRIPPER].shape[1:], options)
     start = time.perf_counter()
-    dataset = LeRobotDataset.create("bench/writer", 30, features, root=out_dir, use_videos=True,
-                                    streaming_encoding=True, video_backend="pyav")  # fmt: skip
+    dataset = LeRobotDataset.create(
+        "bench/writer",
+        30,
+        features,
+        root=out_dir,
+        use_videos=True,
+        streaming_encoding=True,
+        video_backend="pyav",
+    )
     for episode in arrays:
         for frame in iter_frames(episode):
             dataset.add_frame(frame)
@@ -163,23 +181,34 @@ def main() -> None:
             )
             for workers in args.workers:
                 start = time.perf_counter()
-                convert(tmp_dir / "src", "bench/calvin", tmp_dir / f"out{repeat}-{workers}",
-                        options=ConversionOptions(), workers=workers, episodes_per_part=max(1, args.episodes // (2 * workers)))  # fmt: skip
+                convert(
+                    tmp_dir / "src",
+                    "bench/calvin",
+                    tmp_dir / f"out{repeat}-{workers}",
+                    options=ConversionOptions(),
+                    workers=workers,
+                    episodes_per_part=max(1, args.episodes // (2 * workers)),
+                )
                 rows.append(
                     (f"convert LANG, video, {workers} worker(s)", workers, time.perf_counter() - start)
                 )
     floor_fps = num_frames / statistics.median(s for name, _, s in rows if name.startswith("codec"))
     load = os.getloadavg()[0]
-    lines = [f"{num_frames} frames (200x200 + 84x84 per frame), median of {args.repeats}, load average {load:.1f}",
-             "| run | workers | wall s | frames/s | frames/s/worker | % of floor per worker | est. ABC_D LANG (1.07 M) |",
-             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    lines = [
+        f"{num_frames} frames (200x200 + 84x84 per frame), median of {args.repeats}, load average {load:.1f}",
+        "| run | workers | wall s | frames/s | frames/s/worker | % of floor per worker | est. ABC_D LANG "
+        "(1.07 M) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for name in dict.fromkeys(name for name, _, _ in rows):
         workers = next(w for n, w, _ in rows if n == name)
         wall = statistics.median(s for n, _, s in rows if n == name)
         fps = num_frames / wall
         hours = ABC_D_LANG_FRAMES / fps / 3600
-        lines.append(f"| {name} | {workers} | {wall:.1f} | {fps:.1f} | {fps / workers:.1f} | "
-                     f"{100 * fps / workers / floor_fps:.0f} % | {hours:.1f} h |")  # fmt: skip
+        lines.append(
+            f"| {name} | {workers} | {wall:.1f} | {fps:.1f} | {fps / workers:.1f} | "
+            f"{100 * fps / workers / floor_fps:.0f} % | {hours:.1f} h |"
+        )
     logger.info("\n".join(lines))
 
 

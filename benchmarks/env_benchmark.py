@@ -1,4 +1,5 @@
-"""Simulator throughput: control steps per second with both cameras, rendering share, LH-MTLC wall-time estimate.
+"""Simulator throughput: control steps per second with both cameras, rendering share, LH-MTLC wall-time
+estimate.
 
 Measures, side by side in one run and on ONE core (``--core``, via ``os.sched_setaffinity``):
 
@@ -6,14 +7,14 @@ Measures, side by side in one run and on ONE core (``--core``, via ``os.sched_se
 * ``static`` / ``gripper``: the two images of ``render_cameras()`` (200 x 200 and 84 x 84, TinyRenderer, CPU);
 * ``total`` = physics + render per 30 Hz control step, as an evaluation rollout needs it.
 
-Times are CPU time of the calling thread (``time.thread_time``; pybullet DIRECT runs in-process), i.e. what a step
-costs on a dedicated core, so that a loaded shared machine still gives meaningful numbers; the load average is
-printed for context.
+Times are CPU time of the calling thread (``time.thread_time``; pybullet DIRECT runs in-process), i.e. what a
+step costs on a dedicated core, so that a loaded shared machine still gives meaningful numbers; the load
+average is printed for context.
 
-From the total it estimates the simulator-only wall time of the 1000-chain LH-MTLC evaluation (calvin-spec 4.3):
-upper bound 1000 x 5 x 360 steps (every subtask times out), and a typical case in which each chain completes
-``--typical-length`` subtasks of ``--typical-subtask-steps`` steps and then fails one at 360 steps. Policy inference
-is not included.
+From the total it estimates the simulator-only wall time of the 1000-chain LH-MTLC evaluation (calvin-spec
+4.3): upper bound 1000 x 5 x 360 steps (every subtask times out), and a typical case in which each chain
+completes ``--typical-length`` subtasks of ``--typical-subtask-steps`` steps and then fails one at 360 steps.
+Policy inference is not included.
 
 Usage:
     python benchmarks/env_benchmark.py                          # procedural (+ calvin_D if assets are found)
@@ -34,9 +35,24 @@ import pybullet
 from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 EVAL_ROBOT_OBS = np.array(
-    [0.02586889, -0.2313129, 0.5712808, 3.09045411, -0.02908596, 1.50013585, 0.07999963, -1.21779124, 1.03987629,
-     2.11978254, -2.34205014, -0.87015899, 1.64119093, 0.55344928, 1.0]
-)  # fmt: skip
+    [
+        0.02586889,
+        -0.2313129,
+        0.5712808,
+        3.09045411,
+        -0.02908596,
+        1.50013585,
+        0.07999963,
+        -1.21779124,
+        1.03987629,
+        2.11978254,
+        -2.34205014,
+        -0.87015899,
+        1.64119093,
+        0.55344928,
+        1.0,
+    ]
+)
 CHAINS, SUBTASKS, MAX_STEPS = 1000, 5, 360
 
 
@@ -47,7 +63,8 @@ def _scene_obs() -> np.ndarray:
 
 
 def measure(scene: str, assets_dir: Path | None, steps: int) -> dict[str, float]:
-    """Median CPU ms per control step for physics and rendering, over ``steps`` steps of a smooth random walk."""
+    """Median CPU ms per control step for physics and rendering, over ``steps`` steps of a smooth random
+    walk."""
     rng = np.random.default_rng(0)
     with CalvinSimulation(scene, assets_dir=assets_dir) as sim:
         sim.reset(robot_obs=EVAL_ROBOT_OBS, scene_obs=_scene_obs())
@@ -84,7 +101,8 @@ def measure(scene: str, assets_dir: Path | None, steps: int) -> dict[str, float]
 def lh_mtlc_hours(
     steps_per_s: float, workers: int, typical_length: float, typical_subtask_steps: int
 ) -> tuple:
-    """(upper bound, typical) simulator hours of the 1000-chain evaluation on ``workers`` single-core workers."""
+    """(upper bound, typical) simulator hours of the 1000-chain evaluation on ``workers`` single-core
+    workers."""
     upper_steps = CHAINS * SUBTASKS * MAX_STEPS
     per_chain = typical_length * typical_subtask_steps + (MAX_STEPS if typical_length < SUBTASKS else 0)
     typical_steps = CHAINS * per_chain
@@ -118,11 +136,13 @@ def main() -> None:
     scenes = ["procedural"] + (["calvin_D"] if assets is not None else [])
 
     print(
-        f"pybullet numpy support: {bool(pybullet.isNumpyEnabled())}; pinned core: {args.core}; steps: {args.steps}"
+        f"pybullet numpy support: {bool(pybullet.isNumpyEnabled())}; pinned core: {args.core}; steps: "
+        f"{args.steps}"
     )
     print(f"load average: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (timings scale with contention)")
     header = (
-        f"{'scene':<11} {'physics ms':>10} {'static ms':>9} {'gripper ms':>10} {'total ms':>9} {'steps/s':>8} "
+        f"{'scene':<11} {'physics ms':>10} {'static ms':>9} {'gripper ms':>10} {'total ms':>9} "
+        f"{'steps/s':>8} "
         f"{'phys-only/s':>11} {'render %':>8}"
     )
     print(header)
@@ -132,12 +152,15 @@ def main() -> None:
         r = measure(scene, Path(assets) if assets else None, args.steps)
         results[scene] = r
         print(
-            f"{scene:<11} {r['physics_ms']:>10.2f} {r['static_ms']:>9.2f} {r['gripper_ms']:>10.2f} {r['total_ms']:>9.2f} "
-            f"{r['steps_per_s']:>8.1f} {r['physics_only_steps_per_s']:>11.1f} {100 * r['render_share']:>7.0f}%"
+            f"{scene:<11} {r['physics_ms']:>10.2f} {r['static_ms']:>9.2f} {r['gripper_ms']:>10.2f} "
+            f"{r['total_ms']:>9.2f} "
+            f"{r['steps_per_s']:>8.1f} {r['physics_only_steps_per_s']:>11.1f} "
+            f"{100 * r['render_share']:>7.0f}%"
         )
     print()
     print(
-        f"LH-MTLC simulator wall time (1000 chains; upper bound 5 x 360 steps; typical {args.typical_length:g} "
+        "LH-MTLC simulator wall time (1000 chains; upper bound 5 x 360 steps; typical "
+        f"{args.typical_length:g} "
         f"x {args.typical_subtask_steps} steps + one 360-step failure), hours, with cameras:"
     )
     print(f"{'scene':<11} {'workers':>7} {'upper h':>8} {'typical h':>9}")

@@ -1,4 +1,5 @@
-"""Start-up cost: wall time of each command's ``--help`` and of an env worker's first reset, in fresh processes.
+"""Start-up cost: wall time of each command's ``--help`` and of an env worker's first reset, in fresh
+processes.
 
 Each row runs ``--repeats`` fresh interpreters (``python -c``) one after the other and reports the median wall
 time, and which heavy libraries the process ended up importing. The light commands (report, chains, demo

@@ -2,16 +2,16 @@
 
 Usage::
 
-    python benchmarks/policy_benchmark.py                                   # tiny/small/paper sizes, tiny latency
-    python benchmarks/policy_benchmark.py --presets tiny small --latency-presets tiny small --device cuda
-    python benchmarks/policy_benchmark.py --threads 1 --runs 50
+    python benchmarks/policy_benchmark.py                                   # tiny/small/paper sizes, tiny
+    latency python benchmarks/policy_benchmark.py --presets tiny small --latency-presets tiny small --device
+    cuda python benchmarks/policy_benchmark.py --threads 1 --runs 50
 
 Nothing is downloaded. ``small`` and ``paper`` are instantiated from their architectures' known configs
 (``llava-hf/llava-interleave-qwen-0.5b-hf``: SigLIP-so400m-384 + Qwen1.5-0.5B; ``llava-hf/llava-1.5-7b-hf``:
 CLIP ViT-L/14-336 + LLaMA-2-7B) on the ``meta`` device for parameters and FLOPs, and with random weights on
 ``--device`` for latency (latency does not depend on weight values). FLOPs are counted by
-``torch.utils.flop_counter`` for batch size 1: vision tower + projector, the k kept LLM layers, and each head as
-(cross-attention once) + (DiT forward x DDIM steps, doubled batch when classifier-free guidance is on).
+``torch.utils.flop_counter`` for batch size 1: vision tower + projector, the k kept LLM layers, and each head
+as (cross-attention once) + (DiT forward x DDIM steps, doubled batch when classifier-free guidance is on).
 Latency is the median over ``--runs`` chunks of: backbone (``encode``), planner (``plan``), generator
 (``generate``), measured side by side in one process.
 """
@@ -184,7 +184,8 @@ def head_flops(model: SubgoalVLAModel, which: str, hidden: torch.Tensor, mask: t
 
 def flop_row(model: SubgoalVLAModel) -> dict[str, float]:
     """FLOPs per chunk (batch 1). The backbone is split into vision+projector and k decoder layers because the
-    LLaVA placeholder scatter and the causal-mask helpers need real values (not available on the meta device)."""
+    LLaVA placeholder scatter and the causal-mask helpers need real values (not available on the meta
+    device)."""
     vlm, spec = model.backbone.vlm, model.backbone.input_spec
     pixels = torch.zeros(1, 3, spec.image_size, spec.image_size, device="meta")
     length = spec.num_image_tokens + model.config.backbone.max_instruction_tokens
@@ -212,8 +213,8 @@ def synchronize(device: str) -> None:
 def latency_row(model: SubgoalVLAModel, device: str, runs: int) -> dict[str, float]:
     """Median milliseconds per chunk of backbone / planner / generator, measured in one loop.
 
-    ``chunk`` is wall-clock time; ``chunk CPU`` is this process's CPU time for the same chunk, which on a shared,
-    oversubscribed CPU estimates the latency the chunk would have on an idle core (CPU device only).
+    ``chunk`` is wall-clock time; ``chunk CPU`` is this process's CPU time for the same chunk, which on a
+    shared, oversubscribed CPU estimates the latency the chunk would have on an idle core (CPU device only).
     """
     batch = fake_inputs(model, device)
     history = batch["observation.state_history"]

@@ -1,9 +1,11 @@
-"""Training throughput of ``lerobot-train``: our presets beside LeRobot's diffusion and ACT, same data and machine.
+"""Training throughput of ``lerobot-train``: our presets beside LeRobot's diffusion and ACT, same data and
+machine.
 
-Runs ``lerobot-train`` for ``--steps`` steps per policy on one dataset (every policy in a fresh process, one after
-the other, nothing else started by the benchmark) and reads LeRobot's own log lines: ``updt_s`` (forward, backward,
-optimizer step) and ``data_s`` (time the loop waited for the next batch). The first logged interval (start-up,
-first batches) is dropped; the table gives medians over the rest, and samples/s = batch / (updt_s + data_s).
+Runs ``lerobot-train`` for ``--steps`` steps per policy on one dataset (every policy in a fresh process, one
+after the other, nothing else started by the benchmark) and reads LeRobot's own log lines: ``updt_s``
+(forward, backward, optimizer step) and ``data_s`` (time the loop waited for the next batch). The first logged
+interval (start-up, first batches) is dropped; the table gives medians over the rest, and samples/s = batch /
+(updt_s + data_s).
 
 Usage::
 
@@ -30,9 +32,13 @@ from lerobot_subgoalvla.demo_report import parse_train_log  # noqa: E402
 POLICIES = {
     "tiny": ["--policy.type=subgoalvla", "--policy.preset=tiny"],
     "laptop": ["--policy.type=subgoalvla", "--policy.preset=laptop"],
-    "diffusion": ["--policy.type=diffusion", "--policy.pretrained_backbone_weights=null", "--policy.crop_shape=null"],
+    "diffusion": [
+        "--policy.type=diffusion",
+        "--policy.pretrained_backbone_weights=null",
+        "--policy.crop_shape=null",
+    ],
     "act": ["--policy.type=act", "--policy.pretrained_backbone_weights=null"],
-}  # fmt: skip
+}
 
 
 def cameras_share_a_shape(root: Path) -> bool:
@@ -46,13 +52,29 @@ def measure(
 ) -> dict:
     with tempfile.TemporaryDirectory() as out:
         log = Path(out) / "train.log"
-        command = ["lerobot-train", *POLICIES[policy], "--policy.push_to_hub=false", "--policy.device=cpu",
-                   f"--dataset.repo_id={repo_id}", f"--dataset.root={root}", "--dataset.video_backend=pyav",
-                   f"--output_dir={Path(out) / 'run'}", f"--steps={steps}", f"--batch_size={batch}",
-                   f"--num_workers={workers}", f"--log_freq={max(1, steps // 6)}", f"--save_freq={10 * steps}",
-                   "--save_checkpoint=false", "--wandb.enable=false"]  # fmt: skip
-        env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads),
-               "HF_HUB_OFFLINE": "1"}  # fmt: skip
+        command = [
+            "lerobot-train",
+            *POLICIES[policy],
+            "--policy.push_to_hub=false",
+            "--policy.device=cpu",
+            f"--dataset.repo_id={repo_id}",
+            f"--dataset.root={root}",
+            "--dataset.video_backend=pyav",
+            f"--output_dir={Path(out) / 'run'}",
+            f"--steps={steps}",
+            f"--batch_size={batch}",
+            f"--num_workers={workers}",
+            f"--log_freq={max(1, steps // 6)}",
+            f"--save_freq={10 * steps}",
+            "--save_checkpoint=false",
+            "--wandb.enable=false",
+        ]
+        env = {
+            **os.environ,
+            "OMP_NUM_THREADS": str(threads),
+            "MKL_NUM_THREADS": str(threads),
+            "HF_HUB_OFFLINE": "1",
+        }
         with log.open("w") as handle:
             code = subprocess.call(command, stdout=handle, stderr=subprocess.STDOUT, env=env)
         records = parse_train_log(log)[1:]
@@ -61,8 +83,15 @@ def measure(
             return {"policy": policy, "error": " | ".join(tail)}
     update = statistics.median(r["updt_s"] for r in records)
     data = statistics.median(r["data_s"] for r in records)
-    return {"policy": policy, "threads": threads, "workers": workers, "batch": batch, "updt_s": update,
-            "data_s": data, "samples_per_s": batch / (update + data)}  # fmt: skip
+    return {
+        "policy": policy,
+        "threads": threads,
+        "workers": workers,
+        "batch": batch,
+        "updt_s": update,
+        "data_s": data,
+        "samples_per_s": batch / (update + data),
+    }
 
 
 def main() -> None:
@@ -77,7 +106,8 @@ def main() -> None:
     args = parser.parse_args()
     same_shape = cameras_share_a_shape(args.dataset_root)
     print(
-        f"{'policy':<10} {'threads':>7} {'workers':>7} {'batch':>5} {'updt_s':>7} {'data_s':>7} {'samples/s':>9}"
+        f"{'policy':<10} {'threads':>7} {'workers':>7} {'batch':>5} {'updt_s':>7} {'data_s':>7} "
+        f"{'samples/s':>9}"
     )
     for policy in args.policies:
         if policy == "diffusion" and not same_shape:
@@ -91,8 +121,10 @@ def main() -> None:
                 if "error" in r:
                     print(f"{policy:<10} failed: {r['error']}")
                     continue
-                print(f"{policy:<10} {threads:>7} {workers:>7} {r['batch']:>5} {r['updt_s']:>7.3f} "
-                      f"{r['data_s']:>7.3f} {r['samples_per_s']:>9.1f}")  # fmt: skip
+                print(
+                    f"{policy:<10} {threads:>7} {workers:>7} {r['batch']:>5} {r['updt_s']:>7.3f} "
+                    f"{r['data_s']:>7.3f} {r['samples_per_s']:>9.1f}"
+                )
 
 
 if __name__ == "__main__":

@@ -1,8 +1,8 @@
 """SubgoalVLA for LeRobot 0.6: the policy, the CALVIN environment and the CALVIN data path.
 
-Importing the package itself is cheap (no torch, no LeRobot): the command-line tools that need neither start in
-well under a second, and env worker processes stay light. The public names below are loaded on first access;
-asking for any of them also registers the plugin with LeRobot (``lerobot_subgoalvla.plugin``).
+Importing the package itself is cheap (no torch, no LeRobot): the command-line tools that need neither start
+in well under a second, and env worker processes stay light. The public names below are loaded on first
+access; asking for any of them also registers the plugin with LeRobot (``lerobot_subgoalvla.plugin``).
 """
 
 from __future__ import annotations

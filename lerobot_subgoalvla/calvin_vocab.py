@@ -1,8 +1,8 @@
 """CALVIN's vocabulary, shared by the env, the data path, the report and the processor.
 
 One neutral module (DESIGN.md, "Seams between the parts") so that no subpackage imports another for names.
-Every fact here is from ``calvin-spec.md``: sections 1.4 / 1.5 (observation layouts), 2.3 (task ids and names),
-4.3 (evaluation instructions).
+Every fact here is from ``calvin-spec.md``: sections 1.4 / 1.5 (observation layouts), 2.3 (task ids and
+names), 4.3 (evaluation instructions).
 """
 
 from __future__ import annotations
@@ -37,7 +37,8 @@ SCENE_OBS_NAMES: tuple[str, ...] = (
     *_block_slot_names(0), *_block_slot_names(1), *_block_slot_names(2),
 )  # fmt: skip
 
-#: Relative action (7): position deltas, euler deltas (both normalised to [-1, 1]), gripper (-1 close, +1 open).
+#: Relative action (7): position deltas, euler deltas (both normalised to [-1,
+#: 1]), gripper (-1 close, +1 open).
 ACTION_NAMES: tuple[str, ...] = ("d_x", "d_y", "d_z", "d_euler_x", "d_euler_y", "d_euler_z", "gripper")
 
 #: The 34 tasks, ids = position (the order of ``new_playtable_tasks.yaml``, spec 2.3).
@@ -107,7 +108,8 @@ def _training_annotations() -> dict[str, tuple[str, ...]]:
 
 
 #: CALVIN's training instructions per task (spec 1.7): the 389 strings (7-20 per task) of mees/calvin
-#: ``calvin_models/conf/annotations/new_playtable.yaml`` (``fa03f01``), in the file's order within a task, kept as
+#: ``calvin_models/conf/annotations/new_playtable.yaml`` (``fa03f01``), in the
+#: file's order within a task, kept as
 #: data in ``calvin_training_annotations.json`` beside this module.
 #: ``auto_lang_ann.npy``'s ``language.ann`` draws from these; ``EVAL_INSTRUCTIONS`` are not among them.
 TRAINING_ANNOTATIONS: MappingProxyType[str, tuple[str, ...]] = MappingProxyType(_training_annotations())

@@ -1,17 +1,18 @@
-"""``subgoalvla-demo-report``: one page that shows what a training run learned (the main command's last stage).
+"""``subgoalvla-demo-report``: one page that shows what a training run learned (the main command's last
+stage).
 
 Reads what the earlier stages left on disk and writes, into ``--output-dir``:
 
-- ``README.md``: success per single task (with a 95 % Wilson interval), their mean, the LH-1..5 table and average
-  length of the chains, training time and throughput, and links to the pictures and rollout videos;
+- ``README.md``: success per single task (with a 95 % Wilson interval), their mean, the LH-1..5 table and
+  average length of the chains, training time and throughput, and links to the pictures and rollout videos;
 - ``loss_curves.png``: planner and generator loss per logged step from the ``lerobot-train`` log, with the
   stage I -> II switch marked;
 - ``task_success.png``: success per task with its interval;
 - ``summary.json``: the same numbers, machine-readable.
 
-Inputs: ``--train-log`` (the captured stdout/stderr of ``lerobot-train``; LeRobot logs one ``step:... loss:...``
-line every ``--log_freq`` steps) and ``--eval-dir`` holding one ``lerobot-eval`` output folder per task
-(``<task>/eval_info.json``) and ``lh_mtlc/results.jsonl`` from ``--env.results_path``.
+Inputs: ``--train-log`` (the captured stdout/stderr of ``lerobot-train``; LeRobot logs one ``step:...
+loss:...`` line every ``--log_freq`` steps) and ``--eval-dir`` holding one ``lerobot-eval`` output folder per
+task (``<task>/eval_info.json``) and ``lh_mtlc/results.jsonl`` from ``--env.results_path``.
 """
 
 from __future__ import annotations
@@ -45,9 +46,10 @@ def _number(text: str) -> float:
 def parse_train_log(path: Path) -> list[dict[str, float]]:
     """The metrics of every ``step:...`` line LeRobot logged, with exact step numbers.
 
-    LeRobot prints steps rounded to the nearest thousand from 1000 on (``step:2K`` for 1500..2499); the lines come
-    every ``--log_freq`` steps, so a rounded step is replaced by the previous step plus that interval (the first
-    two exact steps give it) whenever the rounding allows it; otherwise (a resumed run) the rounded value stays.
+    LeRobot prints steps rounded to the nearest thousand from 1000 on (``step:2K`` for 1500..2499); the lines
+    come every ``--log_freq`` steps, so a rounded step is replaced by the previous step plus that interval
+    (the first two exact steps give it) whenever the rounding allows it; otherwise (a resumed run) the rounded
+    value stays.
     """
     records, raw_steps = [], []
     for line in Path(path).read_text(errors="replace").splitlines():
@@ -74,7 +76,8 @@ _TQDM_ELAPSED = re.compile(r"Training: *100%\|[^|]*\| *(\d+)/\d+ \[(?:(\d+):)?(\
 
 
 def train_wall_seconds(path: Path) -> float | None:
-    """Wall time of the finished training from LeRobot's progress bar (``Training: 100%|...| N/N [MM:SS<``)."""
+    """Wall time of the finished training from LeRobot's progress bar (``Training: 100%|...| N/N
+    [MM:SS<``)."""
     matches = _TQDM_ELAPSED.findall(Path(path).read_text(errors="replace"))
     if not matches:
         return None
@@ -155,8 +158,10 @@ def plot_task_success(tasks: dict[str, dict[str, Any]], path: Path) -> None:
     ax = fig.subplots()
     names = list(tasks)
     rates = [100 * tasks[t]["rate"] for t in names]
-    errors = [[100 * (tasks[t]["rate"] - tasks[t]["interval_95"][0]) for t in names],
-              [100 * (tasks[t]["interval_95"][1] - tasks[t]["rate"]) for t in names]]  # fmt: skip
+    errors = [
+        [100 * (tasks[t]["rate"] - tasks[t]["interval_95"][0]) for t in names],
+        [100 * (tasks[t]["interval_95"][1] - tasks[t]["rate"]) for t in names],
+    ]
     ax.barh(names, rates, xerr=errors, color="tab:green", capsize=3)
     ax.invert_yaxis()
     ax.set(xlim=(0, 100), xlabel="success rate (%), 95 % interval", title="single tasks, closed loop")
@@ -177,26 +182,42 @@ def _markdown(summary: dict[str, Any], output_dir: Path) -> str:
     lines = ["# SubgoalVLA demo report", ""]
     tasks = summary["tasks"]
     if tasks:
-        lines += [f"Mean single-task success: **{100 * summary['mean_task_success']:.1f} %** over {len(tasks)} tasks.",
-                  "", "| task | success | 95 % interval | first video |", "| --- | --- | --- | --- |"]  # fmt: skip
+        lines += [
+            f"Mean single-task success: **{100 * summary['mean_task_success']:.1f} %** over {len(tasks)} "
+            "tasks.",
+            "",
+            "| task | success | 95 % interval | first video |",
+            "| --- | --- | --- | --- |",
+        ]
         for task, r in tasks.items():
             low, high = r["interval_95"]
             video = f"[mp4]({os.path.relpath(r['videos'][0], output_dir)})" if r["videos"] else ""
             lines.append(
-                f"| {task} | {r['successes']}/{r['episodes']} | {100 * low:.0f}-{100 * high:.0f} % | {video} |"
+                f"| {task} | {r['successes']}/{r['episodes']} | {100 * low:.0f}-{100 * high:.0f} % | {video} "
+                "|"
             )
         lines += ["", "![success per task](task_success.png)", ""]
     chains = summary["lh_mtlc"]
     if chains:
         rates = " | ".join(f"{100 * chains['chain_sr'][str(k)]:.1f} %" for k in range(1, 6))
-        lines += [f"LH-MTLC over {chains['num_chains']} chains: average length **{chains['avg_seq_len']:.2f}**", "",
-                  "| LH-1 | LH-2 | LH-3 | LH-4 | LH-5 |", "| --- | --- | --- | --- | --- |", f"| {rates} |", ""]  # fmt: skip
+        lines += [
+            f"LH-MTLC over {chains['num_chains']} chains: average length **{chains['avg_seq_len']:.2f}**",
+            "",
+            "| LH-1 | LH-2 | LH-3 | LH-4 | LH-5 |",
+            "| --- | --- | --- | --- | --- |",
+            f"| {rates} |",
+            "",
+        ]
     train = summary["training"]
     if train:
         minutes = "" if train["wall_seconds"] is None else f" in {train['wall_seconds'] / 60:.0f} min"
-        lines += [f"Training: {train['steps']:.0f} steps{minutes}, last planner loss {train['planner_loss']:.4f}, "
-                  f"generator loss {train['generator_loss']:.4f}, {train['samples_per_s']:.0f} samples/s.", "",
-                  "![loss curves](loss_curves.png)", ""]  # fmt: skip
+        lines += [
+            f"Training: {train['steps']:.0f} steps{minutes}, last planner loss {train['planner_loss']:.4f}, "
+            f"generator loss {train['generator_loss']:.4f}, {train['samples_per_s']:.0f} samples/s.",
+            "",
+            "![loss curves](loss_curves.png)",
+            "",
+        ]
     lines += ["Predicted subgoal traces (ghost robots) over the executed rollout: ![traces](traces.png)", ""]
     return "\n".join(lines)
 

@@ -5,12 +5,14 @@
   pipeline names and ``PolicyProcessorPipeline.from_pretrained`` looks up;
 - the env type ``calvin`` (``CalvinEnvConfig``).
 
-LeRobot's ``register_third_party_plugins()`` imports it through the discovery shim ``lerobot_policy_subgoalvla``
-(``lerobot-train``, ``lerobot-eval``, ...). Scripts of your own import it once: ``import lerobot_subgoalvla.plugin``
-(or ask for a name: ``from lerobot_subgoalvla import SubgoalVLAPolicy`` imports it too).
+LeRobot's ``register_third_party_plugins()`` imports it through the discovery shim
+``lerobot_policy_subgoalvla`` (``lerobot-train``, ``lerobot-eval``, ...). Scripts of your own import it once:
+``import lerobot_subgoalvla.plugin`` (or ask for a name: ``from lerobot_subgoalvla import SubgoalVLAPolicy``
+imports it too).
 
-Nothing here imports transformers or the model: LeRobot's factory imports ``modeling_subgoalvla`` (the network,
-transformers) when a policy is built, and the tokenizer step loads the backbone's tokenizer when it is first used.
+Nothing here imports transformers or the model: LeRobot's factory imports ``modeling_subgoalvla`` (the
+network, transformers) when a policy is built, and the tokenizer step loads the backbone's tokenizer when it
+is first used.
 """
 
 from lerobot_subgoalvla.envs.calvin.configs import CalvinEnvConfig

@@ -1,4 +1,5 @@
-"""The shared CALVIN vocabulary: layouts, task names, evaluation and training instructions (calvin-spec 1.4-1.7, 2.3, 4.3)."""
+"""The shared CALVIN vocabulary: layouts, task names, evaluation and training instructions (calvin-spec
+1.4-1.7, 2.3, 4.3)."""
 
 import pytest
 

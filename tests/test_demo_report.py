@@ -9,8 +9,10 @@ import pytest
 
 from lerobot_subgoalvla import demo_report
 
-LINE = ("INFO 2026-12-01 ot_train.py:641 step:{step} smpl:2K ep:20 epch:0.07 loss:{loss} grdn:2.1 lr:5.5e-04 "
-        "updt_s:0.367 data_s:0.368 smp/s:44 planner_loss:{loss} generator_loss:0.3 stage:{stage}.000")  # fmt: skip
+LINE = (
+    "INFO 2026-12-01 ot_train.py:641 step:{step} smpl:2K ep:20 epch:0.07 loss:{loss} grdn:2.1 lr:5.5e-04 "
+    "updt_s:0.367 data_s:0.368 smp/s:44 planner_loss:{loss} generator_loss:0.3 stage:{stage}.000"
+)
 
 
 def _log(tmp_path: Path, steps: list[str]) -> Path:
@@ -44,14 +46,21 @@ def test_report_has_success_per_task_chains_and_curves(tmp_path: Path) -> None:
     eval_dir = tmp_path / "eval"
     for task, outcomes in (("open_drawer", [True, True, False, True]), ("turn_on_led", [False, False])):
         (eval_dir / task).mkdir(parents=True)
-        info = {"per_task": [{"task_id": 0, "metrics": {"successes": outcomes}}],
-                "overall": {"video_paths": [str(eval_dir / task / "videos" / "eval_episode_0.mp4")]}}  # fmt: skip
+        info = {
+            "per_task": [{"task_id": 0, "metrics": {"successes": outcomes}}],
+            "overall": {"video_paths": [str(eval_dir / task / "videos" / "eval_episode_0.mp4")]},
+        }
         (eval_dir / task / "eval_info.json").write_text(json.dumps(info))
     chains = eval_dir / "lh_mtlc" / "results.jsonl"
     chains.parent.mkdir()
-    record = {"chain_id": 0, "tasks": ["open_drawer", "turn_on_led", "close_drawer", "move_slider_left",
-              "turn_off_led"], "num_completed": 1, "outcomes": ["success", "failure", "not_attempted",
-              "not_attempted", "not_attempted"], "steps": 400, "subtask_steps": [40, 360]}  # fmt: skip
+    record = {
+        "chain_id": 0,
+        "tasks": ["open_drawer", "turn_on_led", "close_drawer", "move_slider_left", "turn_off_led"],
+        "num_completed": 1,
+        "outcomes": ["success", "failure", "not_attempted", "not_attempted", "not_attempted"],
+        "steps": 400,
+        "subtask_steps": [40, 360],
+    }
     chains.write_text(json.dumps(record) + "\n")
     out = tmp_path / "report"
     summary = demo_report.build_report(_log(tmp_path, ["50", "100", "150", "200"]), eval_dir, out)

@@ -3,10 +3,10 @@
 Marked slow (15 minutes on 2 CPU cores): it runs the user's commands in subprocesses, as the main command
 does, on the two LED tasks (the fixture whose button the arm must find and press; different instructions, same
 place): 96 expert attempts, the ``laptop`` preset for 1500 steps of batch 32 through both stages, then
-``lerobot-eval`` of 10 episodes per task from seeds the data never used. A policy that has not learned anything
-succeeds in 0 of them (the untrained arm drifts away, and the expert's start states are drawn so that the task is
-not already done); measured: 20 of 20 (seed 3 data, eval seeds 5000..); the bar of 12 of 20 leaves room for
-another machine's numerics.
+``lerobot-eval`` of 10 episodes per task from seeds the data never used. A policy that has not learned
+anything succeeds in 0 of them (the untrained arm drifts away, and the expert's start states are drawn so that
+the task is not already done); measured: 20 of 20 (seed 3 data, eval seeds 5000..); the bar of 12 of 20 leaves
+room for another machine's numerics.
 """
 
 from __future__ import annotations
@@ -43,21 +43,75 @@ def _run(args: list[str], log: Path) -> None:
 @pytest.mark.timeout(3600)
 def test_laptop_preset_learns_the_led_tasks_closed_loop(tmp_path: Path) -> None:
     native, root, train = tmp_path / "native", tmp_path / "dataset", tmp_path / "train"
-    _run([_bin("subgoalvla-generate-calvin"), "--output", str(native), "--num-tasks", "96", "--seed", "3",
-          "--tasks-per-segment", "4", "--workers", "2", "--tasks", ",".join(TASKS)], tmp_path / "generate.log")  # fmt: skip
-    _run([_bin("subgoalvla-convert-calvin"), str(native), "--repo-id", "local/led", "--root", str(root),
-          "--workers", "2"], tmp_path / "convert.log")  # fmt: skip
-    _run([_bin("lerobot-train"), "--policy.type=subgoalvla", "--policy.preset=laptop", "--policy.push_to_hub=false",
-          f"--policy.stage2_start_step={STEPS * 4 // 5}", "--dataset.repo_id=local/led", f"--dataset.root={root}",
-          "--dataset.video_backend=pyav", f"--output_dir={train}", f"--steps={STEPS}", f"--batch_size={BATCH}",
-          "--num_workers=1", f"--save_freq={STEPS}", "--seed=0", "--wandb.enable=false"], tmp_path / "train.log")  # fmt: skip
+    _run(
+        [
+            _bin("subgoalvla-generate-calvin"),
+            "--output",
+            str(native),
+            "--num-tasks",
+            "96",
+            "--seed",
+            "3",
+            "--tasks-per-segment",
+            "4",
+            "--workers",
+            "2",
+            "--tasks",
+            ",".join(TASKS),
+        ],
+        tmp_path / "generate.log",
+    )
+    _run(
+        [
+            _bin("subgoalvla-convert-calvin"),
+            str(native),
+            "--repo-id",
+            "local/led",
+            "--root",
+            str(root),
+            "--workers",
+            "2",
+        ],
+        tmp_path / "convert.log",
+    )
+    _run(
+        [
+            _bin("lerobot-train"),
+            "--policy.type=subgoalvla",
+            "--policy.preset=laptop",
+            "--policy.push_to_hub=false",
+            f"--policy.stage2_start_step={STEPS * 4 // 5}",
+            "--dataset.repo_id=local/led",
+            f"--dataset.root={root}",
+            "--dataset.video_backend=pyav",
+            f"--output_dir={train}",
+            f"--steps={STEPS}",
+            f"--batch_size={BATCH}",
+            "--num_workers=1",
+            f"--save_freq={STEPS}",
+            "--seed=0",
+            "--wandb.enable=false",
+        ],
+        tmp_path / "train.log",
+    )
     checkpoint = train / "checkpoints" / "last" / "pretrained_model"
     successes = {}
     for task in TASKS:
         out = tmp_path / "eval" / task
-        _run([_bin("lerobot-eval"), f"--policy.path={checkpoint}", "--env.type=calvin", f"--env.task={task}",
-              f"--eval.n_episodes={EPISODES}", "--eval.batch_size=1", "--eval.use_async_envs=false",
-              f"--output_dir={out}", "--seed=5000"], tmp_path / f"eval_{task}.log")  # fmt: skip
+        _run(
+            [
+                _bin("lerobot-eval"),
+                f"--policy.path={checkpoint}",
+                "--env.type=calvin",
+                f"--env.task={task}",
+                f"--eval.n_episodes={EPISODES}",
+                "--eval.batch_size=1",
+                "--eval.use_async_envs=false",
+                f"--output_dir={out}",
+                "--seed=5000",
+            ],
+            tmp_path / f"eval_{task}.log",
+        )
         info = json.loads((out / "eval_info.json").read_text())
         successes[task] = sum(bool(s) for entry in info["per_task"] for s in entry["metrics"]["successes"])
     assert sum(successes.values()) >= MIN_SUCCESSES, f"closed-loop successes per task: {successes}"

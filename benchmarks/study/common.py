@@ -1,16 +1,16 @@
 """Shared plumbing of the study (docs/RESULTS.md): data, training, evaluation and the results file.
 
-Every table of the study is a list of *runs*; a run is (method, setting, task, seed) with a training command, an
-evaluation and one record per evaluated task in ``benchmarks/study/results.json``. Everything goes through the
-commands a user runs (``subgoalvla-generate-calvin``, ``subgoalvla-convert-calvin``, ``lerobot-train``,
+Every table of the study is a list of *runs*; a run is (method, setting, task, seed) with a training command,
+an evaluation and one record per evaluated task in ``benchmarks/study/results.json``. Everything goes through
+the commands a user runs (``subgoalvla-generate-calvin``, ``subgoalvla-convert-calvin``, ``lerobot-train``,
 ``lerobot-eval``) in subprocesses, with one thread each (``OMP_NUM_THREADS=1``: 2-core machines oversubscribe
-otherwise). A run whose records are already in the results file is skipped, a finished dataset or checkpoint is
-reused, so an interrupted study resumes where it stopped; records are appended atomically.
+otherwise). A run whose records are already in the results file is skipped, a finished dataset or checkpoint
+is reused, so an interrupted study resumes where it stopped; records are appended atomically.
 
 Record keys (the issue's contract): ``method``, ``setting`` (single_task | multi_task | lh_mtlc), ``task``,
 ``seed``, ``episodes``, ``successes`` (+ ``avg_len`` for lh_mtlc), ``train_samples``, ``train_seconds``,
-``scene``; plus ``samples_per_s``, ``latency_ms_per_step`` (the evaluation's wall time per env step, policy and
-simulator together), ``machine`` and the exact ``train_command``.
+``scene``; plus ``samples_per_s``, ``latency_ms_per_step`` (the evaluation's wall time per env step, policy
+and simulator together), ``machine`` and the exact ``train_command``.
 """
 
 from __future__ import annotations
@@ -30,16 +30,29 @@ logger = logging.getLogger("study")
 
 STUDY_DIR = Path(__file__).resolve().parent
 RESULTS_PATH = STUDY_DIR / "results.json"
-FIXTURE_TASKS = ("open_drawer", "close_drawer", "move_slider_left", "move_slider_right",
-                 "turn_on_led", "turn_off_led", "turn_on_lightbulb", "turn_off_lightbulb")  # fmt: skip
+FIXTURE_TASKS = (
+    "open_drawer",
+    "close_drawer",
+    "move_slider_left",
+    "move_slider_right",
+    "turn_on_led",
+    "turn_off_led",
+    "turn_on_lightbulb",
+    "turn_off_lightbulb",
+)
 #: Evaluation seeds start here; the generator's data seeds are small integers, so the start states differ.
 EVAL_SEED = 1000
 SCENE = "procedural"
 
 
 def _env() -> dict[str, str]:
-    return {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1",
-            "MPLBACKEND": "Agg"}  # fmt: skip
+    return {
+        **os.environ,
+        "OMP_NUM_THREADS": "1",
+        "MKL_NUM_THREADS": "1",
+        "HF_HUB_OFFLINE": "1",
+        "MPLBACKEND": "Agg",
+    }
 
 
 def run(command: Sequence[str], log_path: Path) -> float:
@@ -74,14 +87,44 @@ class DataSpec:
         """Generate and convert (each step skipped when done); returns the dataset root."""
         native, root = work / "data" / f"{self.name}_native", work / "data" / self.name
         if not (native / "training").is_dir():
-            run(["subgoalvla-generate-calvin", "--output", str(native), "--num-tasks", str(self.num_tasks),
-                 "--seed", str(self.seed), "--tasks-per-segment", "4", "--workers", str(workers),
-                 "--tasks", ",".join(self.tasks), "--static-size", str(self.static_size),
-                 "--gripper-size", str(self.gripper_size)], work / "logs" / f"{self.name}_generate.log")  # fmt: skip
+            run(
+                [
+                    "subgoalvla-generate-calvin",
+                    "--output",
+                    str(native),
+                    "--num-tasks",
+                    str(self.num_tasks),
+                    "--seed",
+                    str(self.seed),
+                    "--tasks-per-segment",
+                    "4",
+                    "--workers",
+                    str(workers),
+                    "--tasks",
+                    ",".join(self.tasks),
+                    "--static-size",
+                    str(self.static_size),
+                    "--gripper-size",
+                    str(self.gripper_size),
+                ],
+                work / "logs" / f"{self.name}_generate.log",
+            )
         if not root.is_dir():
             resume = ["--resume"] if root.with_name(root.name + ".partial").is_dir() else []
-            run(["subgoalvla-convert-calvin", str(native), "--repo-id", f"study/{self.name}", "--root", str(root),
-                 "--workers", str(workers), *resume], work / "logs" / f"{self.name}_convert.log")  # fmt: skip
+            run(
+                [
+                    "subgoalvla-convert-calvin",
+                    str(native),
+                    "--repo-id",
+                    f"study/{self.name}",
+                    "--root",
+                    str(root),
+                    "--workers",
+                    str(workers),
+                    *resume,
+                ],
+                work / "logs" / f"{self.name}_convert.log",
+            )
         return root
 
 
@@ -150,12 +193,23 @@ def execute(spec: RunSpec, work: Path) -> list[dict]:
     checkpoint = out / "train" / "checkpoints" / "last" / "pretrained_model"
     train_log = out / "train.log"
     timing = out / "train_seconds.txt"
-    train_command = ["lerobot-train", *spec.method.policy_flags, "--policy.push_to_hub=false",
-                     f"--dataset.repo_id=study/{spec.data.name}", f"--dataset.root={root}",
-                     "--dataset.video_backend=pyav", f"--output_dir={out / 'train'}", f"--steps={spec.steps}",
-                     f"--batch_size={spec.method.batch_size}", "--num_workers=1", "--log_freq=50",
-                     f"--save_freq={spec.steps}", f"--seed={spec.seed}", "--wandb.enable=false",
-                     *spec.extra_train_flags]  # fmt: skip
+    train_command = [
+        "lerobot-train",
+        *spec.method.policy_flags,
+        "--policy.push_to_hub=false",
+        f"--dataset.repo_id=study/{spec.data.name}",
+        f"--dataset.root={root}",
+        "--dataset.video_backend=pyav",
+        f"--output_dir={out / 'train'}",
+        f"--steps={spec.steps}",
+        f"--batch_size={spec.method.batch_size}",
+        "--num_workers=1",
+        "--log_freq=50",
+        f"--save_freq={spec.steps}",
+        f"--seed={spec.seed}",
+        "--wandb.enable=false",
+        *spec.extra_train_flags,
+    ]
     if not timing.is_file():
         if (out / "train").exists():
             import shutil
@@ -173,32 +227,61 @@ def execute(spec: RunSpec, work: Path) -> list[dict]:
     return records
 
 
-def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path, train_seconds: float,
-              metrics: dict[str, float], train_command: list[str]) -> dict:  # fmt: skip
+def _evaluate(
+    spec: RunSpec,
+    task: str,
+    checkpoint: Path,
+    out: Path,
+    train_seconds: float,
+    metrics: dict[str, float],
+    train_command: list[str],
+) -> dict:
     eval_dir = out / "eval" / task
-    size_flags = [f"--env.static_image_size={spec.data.static_size}",
-                  f"--env.gripper_image_size={spec.data.gripper_size}"]  # fmt: skip
+    size_flags = [
+        f"--env.static_image_size={spec.data.static_size}",
+        f"--env.gripper_image_size={spec.data.gripper_size}",
+    ]
     if not (eval_dir / "eval_info.json").is_file():
-        run(["lerobot-eval", f"--policy.path={checkpoint}", "--env.type=calvin", f"--env.task={task}", *size_flags,
-             f"--eval.n_episodes={spec.episodes}", f"--eval.batch_size={spec.eval_batch_size}",
-             f"--eval.use_async_envs={str(spec.eval_batch_size > 1).lower()}",
-             f"--output_dir={eval_dir}", f"--seed={EVAL_SEED}"], out / f"eval_{task}.log")  # fmt: skip
+        run(
+            [
+                "lerobot-eval",
+                f"--policy.path={checkpoint}",
+                "--env.type=calvin",
+                f"--env.task={task}",
+                *size_flags,
+                f"--eval.n_episodes={spec.episodes}",
+                f"--eval.batch_size={spec.eval_batch_size}",
+                f"--eval.use_async_envs={str(spec.eval_batch_size > 1).lower()}",
+                f"--output_dir={eval_dir}",
+                f"--seed={EVAL_SEED}",
+            ],
+            out / f"eval_{task}.log",
+        )
     from lerobot_subgoalvla.demo_report import episode_successes
 
     info = json.loads((eval_dir / "eval_info.json").read_text())
     successes = episode_successes(info)
     return {
-        "method": spec.method.name, "setting": spec.setting, "task": task, "seed": spec.seed,
-        "episodes": len(successes), "successes": sum(successes),
-        "train_samples": spec.steps * spec.method.batch_size, "train_seconds": round(train_seconds, 1),
-        "samples_per_s": metrics.get("smp/s"), "eval_seconds_per_episode": info["overall"].get("eval_ep_s"),
-        "eval_seconds": info["overall"].get("eval_s"), "scene": SCENE, "machine": machine(),
+        "method": spec.method.name,
+        "setting": spec.setting,
+        "task": task,
+        "seed": spec.seed,
+        "episodes": len(successes),
+        "successes": sum(successes),
+        "train_samples": spec.steps * spec.method.batch_size,
+        "train_seconds": round(train_seconds, 1),
+        "samples_per_s": metrics.get("smp/s"),
+        "eval_seconds_per_episode": info["overall"].get("eval_ep_s"),
+        "eval_seconds": info["overall"].get("eval_s"),
+        "scene": SCENE,
+        "machine": machine(),
         "train_command": shlex.join(train_command),
-    }  # fmt: skip
+    }
 
 
 def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -> list[dict]:
-    """Records of a finished ``scripts/demo.sh`` run (its ``train.log``, ``eval/<task>/`` and ``eval/lh_mtlc/``).
+    """Records of a finished ``scripts/demo.sh`` run (its ``train.log``, ``eval/<task>/`` and
+    ``eval/lh_mtlc/``).
 
     The demo is the multi-task SubgoalVLA run of this study; importing it avoids training the same run twice.
     """
@@ -213,17 +296,39 @@ def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -
     seconds = train_wall_seconds(demo_dir / "train.log")
     info_path = demo_dir / "dataset" / "meta" / "info.json"
     info = json.loads(info_path.read_text()) if info_path.is_file() else {}
-    common = {"method": method, "seed": seed, "train_samples": steps * batch_size,
-              "train_episodes": info.get("total_episodes"), "train_frames": info.get("total_frames"),
-              "train_seconds": None if seconds is None else round(seconds, 1),
-              "samples_per_s": log[-1].get("smp/s"), "scene": SCENE, "machine": machine(),
-              "source": str(demo_dir)}  # fmt: skip
-    records = [{**common, "setting": "multi_task", "task": task, "episodes": r["episodes"],
-                "successes": r["successes"]} for task, r in read_task_results(demo_dir / "eval").items()]  # fmt: skip
+    common = {
+        "method": method,
+        "seed": seed,
+        "train_samples": steps * batch_size,
+        "train_episodes": info.get("total_episodes"),
+        "train_frames": info.get("total_frames"),
+        "train_seconds": None if seconds is None else round(seconds, 1),
+        "samples_per_s": log[-1].get("smp/s"),
+        "scene": SCENE,
+        "machine": machine(),
+        "source": str(demo_dir),
+    }
+    records = [
+        {
+            **common,
+            "setting": "multi_task",
+            "task": task,
+            "episodes": r["episodes"],
+            "successes": r["successes"],
+        }
+        for task, r in read_task_results(demo_dir / "eval").items()
+    ]
     chains = demo_dir / "eval" / "lh_mtlc" / "results.jsonl"
     if chains.is_file():
         report = summarize(read_episode_results(chains))
-        records.append({**common, "setting": "lh_mtlc", "task": "lh_mtlc", "episodes": report.num_chains,
-                        "successes": round(report.chain_sr[5] * report.num_chains),
-                        "avg_len": report.avg_seq_len})  # fmt: skip
+        records.append(
+            {
+                **common,
+                "setting": "lh_mtlc",
+                "task": "lh_mtlc",
+                "episodes": report.num_chains,
+                "successes": round(report.chain_sr[5] * report.num_chains),
+                "avg_len": report.avg_seq_len,
+            }
+        )
     return records

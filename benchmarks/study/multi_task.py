@@ -3,8 +3,10 @@
 One dataset of the 8 fixture tasks (the demo's data), one training run per (method, seed), every fixture task
 evaluated with the same episodes and seeds. Methods:
 
-- ``subgoalvla`` (proprioceptive cross-attention, planner, both stages): the laptop preset as the demo trains it;
-- pooling ablations (paper table 4): ``subgoalvla_mean_pool``, ``subgoalvla_max_pool``, ``subgoalvla_attn_pool``;
+- ``subgoalvla`` (proprioceptive cross-attention, planner, both stages): the laptop preset as the demo trains
+  it;
+- pooling ablations (paper table 4): ``subgoalvla_mean_pool``, ``subgoalvla_max_pool``,
+  ``subgoalvla_attn_pool``;
 - planner ablations (table 3): ``subgoalvla_no_planner`` (w/o SP), ``subgoalvla_one_step_trace`` (w/o ST);
 - ``subgoalvla_stage1_only`` (no stage II) and ``subgoalvla_t100`` (T = 100 training timesteps, DDIM 10).
 
@@ -37,11 +39,22 @@ METHODS = {
     "subgoalvla_max_pool": Method("subgoalvla_max_pool", (*LAPTOP, "--policy.feature_aggregation=max")),
     "subgoalvla_attn_pool": Method("subgoalvla_attn_pool", (*LAPTOP, "--policy.feature_aggregation=attn")),
     "subgoalvla_no_planner": Method("subgoalvla_no_planner", (*LAPTOP, "--policy.use_planner=false")),
-    "subgoalvla_one_step_trace": Method("subgoalvla_one_step_trace", (*LAPTOP, "--policy.subgoal_trace_len=1")),
+    "subgoalvla_one_step_trace": Method(
+        "subgoalvla_one_step_trace", (*LAPTOP, "--policy.subgoal_trace_len=1")
+    ),
     "subgoalvla_stage1_only": Method("subgoalvla_stage1_only", LAPTOP),
-    "subgoalvla_t100": Method("subgoalvla_t100", (*LAPTOP, *(f"--policy.{head}.{flag}" for head in ("planner", "generator")
-                              for flag in ("num_train_timesteps=100", "num_inference_steps=10")))),
-}  # fmt: skip
+    "subgoalvla_t100": Method(
+        "subgoalvla_t100",
+        (
+            *LAPTOP,
+            *(
+                f"--policy.{head}.{flag}"
+                for head in ("planner", "generator")
+                for flag in ("num_train_timesteps=100", "num_inference_steps=10")
+            ),
+        ),
+    ),
+}
 #: Methods trained through both stages (stage II for the last fifth, as the demo does).
 TWO_STAGE = {name for name in METHODS if name not in ("subgoalvla_no_planner", "subgoalvla_stage1_only")}
 
@@ -62,7 +75,7 @@ def main() -> None:
         type=Path,
         default=None,
         metavar="ROOT",
-        help="train on this converted fixture-task dataset (e.g. outputs/demo/dataset) instead of generating one",
+        help="train on this converted fixture-task dataset (e.g. outputs/demo/dataset), not a new one",
     )
     parser.add_argument(
         "--eval-batch-size",
@@ -97,14 +110,25 @@ def main() -> None:
     for name in args.methods:
         extra = (f"--policy.stage2_start_step={args.steps * 4 // 5}",) if name in TWO_STAGE else ()
         for seed in args.seeds:
-            spec = RunSpec(METHODS[name], "multi_task", data, FIXTURE_TASKS, seed, args.steps, args.episodes,
-                           extra, dataset_root=args.dataset, eval_batch_size=args.eval_batch_size)  # fmt: skip
+            spec = RunSpec(
+                METHODS[name],
+                "multi_task",
+                data,
+                FIXTURE_TASKS,
+                seed,
+                args.steps,
+                args.episodes,
+                extra,
+                dataset_root=args.dataset,
+                eval_batch_size=args.eval_batch_size,
+            )
             if args.dry_run:
                 print(spec.run_name, " ".join((*spec.method.policy_flags, *extra)))
                 continue
             for record in execute(spec, args.work_dir):
                 print(
-                    f"{record['method']:>26} {record['task']:<20} seed {seed}: {record['successes']}/{record['episodes']}"
+                    f"{record['method']:>26} {record['task']:<20} seed {seed}: "
+                    f"{record['successes']}/{record['episodes']}"
                 )
 
 

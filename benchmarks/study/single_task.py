@@ -1,10 +1,11 @@
 """Study table 1: SubgoalVLA against LeRobot's ``diffusion`` and ``act`` on single-task datasets.
 
 Diffusion Policy and ACT take no language, so every method is trained per task on a dataset of that task alone
-(``subgoalvla-generate-calvin --tasks <task>``), with the same number of training samples (steps x batch) and the
-same evaluation seeds. LeRobot's diffusion needs all cameras of one shape, so this table's data and env use 84 px
-for both cameras (for every method alike). Nothing downloads: the ResNet-18 backbones of diffusion and ACT start
-from random weights (``pretrained_backbone_weights=null``), as SubgoalVLA's laptop backbone does.
+(``subgoalvla-generate-calvin --tasks <task>``), with the same number of training samples (steps x batch) and
+the same evaluation seeds. LeRobot's diffusion needs all cameras of one shape, so this table's data and env
+use 84 px for both cameras (for every method alike). Nothing downloads: the ResNet-18 backbones of diffusion
+and ACT start from random weights (``pretrained_backbone_weights=null``), as SubgoalVLA's laptop backbone
+does.
 
 Usage::
 

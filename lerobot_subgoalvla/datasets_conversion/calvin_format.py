@@ -152,7 +152,8 @@ def check_frame(path: Path, keys: Sequence[str] = CORE_KEYS) -> dict[str, np.nda
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(
-            f"{path}: frame file missing although ep_start_end_ids.npy covers it; restore the file or fix the segment table"
+            f"{path}: frame file missing although ep_start_end_ids.npy covers it; restore the file or fix "
+            "the segment table"
         )
     try:
         with zipfile.ZipFile(path) as archive:  # an npz is a zip of .npy members
@@ -167,7 +168,8 @@ def check_frame(path: Path, keys: Sequence[str] = CORE_KEYS) -> dict[str, np.nda
         ) from error
     if missing:
         raise ValueError(
-            f"{path}: missing key(s) {missing} (has {sorted(members)}); re-export the frame with all keys {list(keys)}"
+            f"{path}: missing key(s) {missing} (has {sorted(members)}); re-export the frame with all keys "
+            f"{list(keys)}"
         )
     for key, array in arrays.items():
         spec = NPZ_SCHEMA[key]
@@ -245,7 +247,8 @@ class CalvinSplit:
         path = self.root / LANG_ANN_FILE
         if not path.is_file():
             raise FileNotFoundError(
-                f"{path}: language annotations not found; LANG mode needs them - use --mode all or add the file"
+                f"{path}: language annotations not found; LANG mode needs them - use --mode all or add the "
+                "file"
             )
         return LanguageAnnotations.from_dict(_load_pickled(path))
 

@@ -71,7 +71,8 @@ def _check_coverage(split: CalvinSplit) -> None:
         missing = next((i for i in range(start, end + 1) if i not in present), None)
         if missing is not None:
             raise FileNotFoundError(
-                f"{split.root / frame_filename(missing)}: frame file missing although {EPISODE_IDS_FILE} covers "
+                f"{split.root / frame_filename(missing)}: frame file missing although {EPISODE_IDS_FILE} "
+                "covers "
                 f"it (segment [{start}, {end}]); restore the file or fix the segment table"
             )
     for start, _ in split.segments.tolist():
@@ -123,7 +124,8 @@ def validate_split(split_dir: Path, require_language: bool, keys: Sequence[str] 
             for key in ("rgb_static", "rgb_gripper"):
                 if key in arrays and image_shapes.setdefault(key, arrays[key].shape) != arrays[key].shape:
                     raise ValueError(
-                        f"{split.frame_path(frame_id)}: {key} has shape {arrays[key].shape} but earlier frames "
+                        f"{split.frame_path(frame_id)}: {key} has shape {arrays[key].shape} but earlier "
+                        "frames "
                         f"have {image_shapes[key]}; all frames of a split need one camera size"
                     )
     return split

@@ -11,14 +11,16 @@ Examples::
         --mode all --split both --image-format image
 
     # continue after an interruption (Ctrl-C, crash, SIGKILL): finished parts are kept
-    subgoalvla-convert-calvin /data/task_ABC_D --repo-id me/calvin_abc_lang --root /data/lerobot/calvin_abc --resume
+    subgoalvla-convert-calvin /data/task_ABC_D --repo-id me/calvin_abc_lang --root /data/lerobot/calvin_abc
+    --resume
 
 Output and resumption: a split is written into ``ROOT.partial/`` as fixed-size part-datasets
 (``parts/part-XXXXXX``, each renamed into place only when complete), merged with LeRobot's
 ``aggregate_datasets``, optionally verified, and only then renamed to ``ROOT``: a folder at ``ROOT`` is
 always a complete dataset. ``--resume`` keeps the finished parts (the options must match the ones recorded in
 ``ROOT.partial/options.json``) and returns an already complete ``ROOT`` as is; ``--overwrite`` deletes an
-existing ``ROOT`` / ``ROOT.partial`` first. Without either, an existing ``ROOT`` or ``ROOT.partial`` is an error.
+existing ``ROOT`` / ``ROOT.partial`` first. Without either, an existing ``ROOT`` or ``ROOT.partial`` is an
+error.
 """
 
 from __future__ import annotations
@@ -80,7 +82,8 @@ def _prepare_partial(root: Path, record: dict, resume: bool, overwrite: bool) ->
     if partial.exists():
         if not resume:
             raise FileExistsError(
-                f"{partial}: an unfinished conversion is there; pass --resume to continue it or --overwrite to restart"
+                f"{partial}: an unfinished conversion is there; pass --resume to continue it or --overwrite "
+                "to restart"
             )
         previous = json.loads(options_path.read_text()) if options_path.is_file() else None
         if previous != record:
@@ -95,7 +98,8 @@ def _prepare_partial(root: Path, record: dict, resume: bool, overwrite: bool) ->
 
 
 def _run_parts(jobs: list[PartJob], workers: int, total_frames: int, desc: str) -> None:
-    """Write the missing parts, in worker processes when ``workers > 1`` (spawned: LeRobot/torch are not fork-safe)."""
+    """Write the missing parts, in worker processes when ``workers > 1`` (spawned: LeRobot/torch are not
+    fork-safe)."""
     todo = [job for job in jobs if not job.final_dir.is_dir()]
     done_frames = total_frames - sum(ep.length for job in todo for ep in job.episodes)
     with tqdm(total=total_frames, initial=done_frames, unit="frame", desc=desc) as progress:
@@ -126,9 +130,11 @@ def _finish(partial: Path, repo_id: str, jobs: list[PartJob], record: dict) -> P
         url="http://calvin.cs.uni-freiburg.de",
         dataset_description=(
             f"CALVIN ({record['source']}, split {record['split']}) converted by subgoalvla-convert-calvin in "
-            f"{record['mode'].upper()} mode: observation.state_history = robot_obs[t-{record['history_length'] - 1}"
+            f"{record['mode'].upper()} mode: observation.state_history = "
+            f"robot_obs[t-{record['history_length'] - 1}"
             f"..t], observation.subgoal_trace = robot_obs[t+{record['trace_start']}..t+"
-            f"{record['trace_start'] + record['trace_length'] - 1}], block slots in {record['block_order']} order. "
+            f"{record['trace_start'] + record['trace_length'] - 1}], block slots in {record['block_order']} "
+            "order. "
             "CALVIN is MIT-licensed (Mees et al., 2022)."
         ),
     )
@@ -176,10 +182,17 @@ def convert_split(
     }
     partial = _prepare_partial(root, record, resume, overwrite)
     jobs = [
-        PartJob(i // episodes_per_part, partial / "parts", repo_id, split.root,
-                tuple(episodes[i : i + episodes_per_part]), features, options)
+        PartJob(
+            i // episodes_per_part,
+            partial / "parts",
+            repo_id,
+            split.root,
+            tuple(episodes[i : i + episodes_per_part]),
+            features,
+            options,
+        )
         for i in range(0, len(episodes), episodes_per_part)
-    ]  # fmt: skip
+    ]
     _run_parts(jobs, workers, sum(ep.length for ep in episodes), desc=f"{split.name} ({options.mode})")
     merged = _finish(partial, repo_id, jobs, record)
     if verify:  # before the rename: a dataset that fails verification never appears at ROOT

@@ -103,7 +103,8 @@ class GeneratorOptions:
         return [self.tasks_per_segment] * full + ([rest] if rest else [])
 
     def validation_segments(self) -> set[int]:
-        """Segments of the validation split: a seeded random ``val_fraction`` of them (>= 1 if fraction > 0)."""
+        """Segments of the validation split: a seeded random ``val_fraction`` of them (>= 1 if fraction >
+        0)."""
         count = len(self.segment_tasks())
         num_val = min(count - 1, max(1, round(self.val_fraction * count))) if self.val_fraction > 0 else 0
         order = np.random.default_rng(np.random.SeedSequence([self.seed, 2**31 - 1])).permutation(count)
@@ -142,15 +143,20 @@ def generate_segment(job: SegmentJob) -> int:
     for t in range(segment.num_frames):
         write_frame(tmp, t, {key: value[t] for key, value in segment.frames.items()})
     tmp.mkdir(parents=True, exist_ok=True)
-    summary = {"num_frames": segment.num_frames, "windows": segment.windows,
-               "attempted": segment.attempted, "completed": segment.completed}  # fmt: skip
+    summary = {
+        "num_frames": segment.num_frames,
+        "windows": segment.windows,
+        "attempted": segment.attempted,
+        "completed": segment.completed,
+    }
     (tmp / "segment.json").write_text(json.dumps(summary))
     tmp.rename(job.directory)
     return segment.num_frames
 
 
 def _assemble_split(output: Path, name: str, jobs: list[SegmentJob], opts: GeneratorOptions) -> None:
-    """Hard-link the segments' frames into ``OUTPUT/<name>`` with consecutive ids and write the index files."""
+    """Hard-link the segments' frames into ``OUTPUT/<name>`` with consecutive ids and write the index
+    files."""
     tmp = output / f"{name}.tmp"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
@@ -183,8 +189,13 @@ def _assemble_split(output: Path, name: str, jobs: list[SegmentJob], opts: Gener
     tmp.rename(output / name)
     logger.info(
         "%s: %d segments, %d frames, %d language windows (%d of %d task attempts confirmed by the oracle)",
-        name, len(rows), next_id, len(indx), completed, attempted,
-    )  # fmt: skip
+        name,
+        len(rows),
+        next_id,
+        len(indx),
+        completed,
+        attempted,
+    )
 
 
 def _check_options(segments_dir: Path, opts: GeneratorOptions) -> None:
@@ -250,7 +261,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--tasks",
         type=_task_list,
         default=TASK_NAMES,
-        help="comma-separated CALVIN task names the expert may play (default: all 34), e.g. open_drawer,close_drawer",
+        help="comma-separated CALVIN tasks the expert may play, e.g. open_drawer,close_drawer (default: all)",
     )
     return parser.parse_args(argv)
 

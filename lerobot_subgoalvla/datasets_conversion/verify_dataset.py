@@ -35,7 +35,8 @@ from lerobot_subgoalvla.datasets_conversion.lerobot_parts import (
 
 logger = logging.getLogger(__name__)
 
-#: Mean absolute pixel error (in [0, 1]) accepted for AV1 (crf 30) frames; measured ~0.01 on CALVIN-like renders.
+#: Mean absolute pixel error (in [0, 1]) accepted for AV1 (crf 30) frames;
+#: measured ~0.01 on CALVIN-like renders.
 VIDEO_MEAN_ABS_TOLERANCE = 0.04
 NUMERIC_KEYS = (
     "observation.state",
@@ -126,7 +127,8 @@ def _verify_images(dataset, split, columns, options, image_samples: int, num_epi
         )
     if options.image_format == "video" and mean_error > VIDEO_MEAN_ABS_TOLERANCE:
         raise ValueError(
-            f"verify: video frames differ from the source beyond codec tolerance (mean abs error {mean_error:.4f} > "
+            "verify: video frames differ from the source beyond codec tolerance (mean abs error "
+            f"{mean_error:.4f} > "
             f"{VIDEO_MEAN_ABS_TOLERANCE}); check the encoder settings or use --image-format image"
         )
     return VerifyReport(num_episodes, num_frames, len(indices), max_error, mean_error)

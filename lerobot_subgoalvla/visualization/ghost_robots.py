@@ -1,8 +1,8 @@
 """Subgoal traces made visible (paper figure 7): predicted proprioceptive traces drawn as ghost robots.
 
 SubgoalVLA's planner predicts a trace of future robot states, ``(M, 15)`` in CALVIN's ``robot_obs`` layout
-(spec 1.4; the data contract's ``observation.subgoal_trace`` with M = 8). To see what the plan means, each trace
-state is shown as a translucent copy of the robot in the static camera's view:
+(spec 1.4; the data contract's ``observation.subgoal_trace`` with M = 8). To see what the plan means, each
+trace state is shown as a translucent copy of the robot in the static camera's view:
 
 1. save the PyBullet state (``saveState``),
 2. for each trace state m, put the simulation's own robot in that pose (arm joints ``robot_obs[7:14]``, each

@@ -15,7 +15,8 @@ Command::
     subgoalvla-render-traces --policy-path outputs/train/<run>/checkpoints/last/pretrained_model \\
         --task open_drawer --steps 60 --output traces.mp4     # or strip.png
 
-Dimension legend: ``B`` batch (1 here), ``M`` trace length, ``p`` proprio dim (15), ``H = W`` static image side.
+Dimension legend: ``B`` batch (1 here), ``M`` trace length, ``p`` proprio dim (15), ``H = W`` static image
+side.
 """
 
 from __future__ import annotations
@@ -58,8 +59,8 @@ def _proprio_normalizer(preprocessor: Any) -> ProprioNormalizerProcessorStep:
 def unnormalize_state(preprocessor: Any, tensor: torch.Tensor) -> torch.Tensor:
     """Invert the pre-processor's normalisation of ``observation.state`` on ``(..., p)`` rows.
 
-    The exact inverse of :class:`ProprioNormalizerProcessorStep` with the statistics saved in the checkpoint, so
-    a trace comes back in ``robot_obs`` units (angles wrapped to [-pi, pi)).
+    The exact inverse of :class:`ProprioNormalizerProcessorStep` with the statistics saved in the checkpoint,
+    so a trace comes back in ``robot_obs`` units (angles wrapped to [-pi, pi)).
     """
     return _proprio_normalizer(preprocessor).decode(tensor)
 
@@ -71,7 +72,8 @@ def rollout_with_traces(
 
     Args:
         policy: A SubgoalVLA policy with a planner (it exposes ``last_subgoal_trace``).
-        preprocessor: The policy's pre-processor (its ``observation.state`` statistics un-normalise the trace).
+        preprocessor: The policy's pre-processor (its ``observation.state`` statistics un-normalise the
+        trace).
         postprocessor: The policy's post-processor (un-normalises the actions).
         env: A single (not vectorised) ``CalvinEnv``; reset here with ``seed``.
         num_steps: Environment steps at most (the rollout stops earlier when the episode ends).
@@ -146,7 +148,7 @@ def _image_side(policy: Any, key: str) -> int:
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="subgoalvla-render-traces",
-        description="Roll a SubgoalVLA checkpoint out in CALVIN and draw its planned subgoal traces as ghosts.",
+        description="Roll a SubgoalVLA checkpoint out in CALVIN; draw its planned subgoal traces as ghosts",
     )
     parser.add_argument("--policy-path", required=True, help="checkpoint dir (config.json + processors)")
     parser.add_argument("--task", required=True, choices=(LH_MTLC, *TASK_NAMES), help="task or lh_mtlc")

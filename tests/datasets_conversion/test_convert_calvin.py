@@ -92,15 +92,24 @@ def test_all_mode_and_both_splits(source: Path, tmp_path: Path) -> None:
     np.testing.assert_array_equal(np.bincount(_columns(training, "episode_index")), [30, 35])
     assert validation.num_episodes == 1 and validation.num_frames == 20
     tasks = [training[i]["task"] for i in (0, 9, 10, 21, 29, 30, 45)]
-    assert tasks == ["open the drawer", "open the drawer", "press the button", "press the button",
-                     "press the button", PLAY_TASK, "lift the red block"]  # fmt: skip
+    assert tasks == [
+        "open the drawer",
+        "open the drawer",
+        "press the button",
+        "press the button",
+        "press the button",
+        PLAY_TASK,
+        "lift the red block",
+    ]
 
 
 def test_verify_video_dataset(source: Path, tmp_path: Path) -> None:
     dataset = convert(source, "local/video", tmp_path / "video", verify=True, max_episodes=2)["training"]
     assert dataset.meta.features["observation.images.static"]["dtype"] == "video"
     assert sorted(p.name for p in (tmp_path / "video" / "videos").iterdir()) == [
-        "observation.images.gripper", "observation.images.static"]  # fmt: skip
+        "observation.images.gripper",
+        "observation.images.static",
+    ]
     split = CalvinSplit(source / "training")
     from lerobot_subgoalvla.datasets_conversion.convert_calvin import select_episodes
 
@@ -161,8 +170,17 @@ def test_corrupt_frame_mid_conversion_leaves_nothing_complete(tmp_path: Path, ca
 
 def _dataset_arrays(dataset) -> dict[str, np.ndarray]:
     table = dataset.hf_dataset.with_format("numpy")
-    keys = ["observation.state", "observation.state_history", "observation.subgoal_trace", "action",
-            "observation.environment_state", "calvin_frame_index", "episode_index", "index", "task_index"]  # fmt: skip
+    keys = [
+        "observation.state",
+        "observation.state_history",
+        "observation.subgoal_trace",
+        "action",
+        "observation.environment_state",
+        "calvin_frame_index",
+        "episode_index",
+        "index",
+        "task_index",
+    ]
     keys += ["observation.images.static", "observation.images.gripper"]  # PNG frames decoded by datasets
     return {key: np.asarray(table[key]) for key in keys}
 
@@ -172,9 +190,22 @@ def test_kill_and_resume_gives_identical_dataset(tmp_path: Path) -> None:
     segments = [(i * 30, i * 30 + 19) for i in range(8)]
     write_native_split(src / "training", segments, (), None, static=64, gripper=64)
     root = tmp_path / "killed"
-    argv = [sys.executable, "-m", "lerobot_subgoalvla.datasets_conversion.convert_calvin", str(src),
-            "--repo-id", "local/k", "--root", str(root), "--mode", "all", "--image-format", "image",
-            "--episodes-per-part", "1"]  # fmt: skip
+    argv = [
+        sys.executable,
+        "-m",
+        "lerobot_subgoalvla.datasets_conversion.convert_calvin",
+        str(src),
+        "--repo-id",
+        "local/k",
+        "--root",
+        str(root),
+        "--mode",
+        "all",
+        "--image-format",
+        "image",
+        "--episodes-per-part",
+        "1",
+    ]
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "PYTHONPATH": os.pathsep.join(sys.path)}
     process = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     parts = root.with_name("killed.partial") / "parts"

@@ -27,27 +27,71 @@ from lerobot_subgoalvla.envs.calvin.evaluation.chains import (
 )
 
 #: Spec 4.1's task list order (full names), which fixes what RandomState(i).choice(T, 5) picks.
-SPEC_TASK_ORDER = [
-    f"{verb}_{c}_block_{side}" for verb in ("rotate", "push") for c in ("red", "blue", "pink") for side in ("right", "left")
-] + ["move_slider_left", "move_slider_right", "open_drawer", "close_drawer"] + [
-    f"lift_{c}_block_{s}" for c in ("red", "blue", "pink") for s in ("table", "slider", "drawer")
-] + ["place_in_slider", "place_in_drawer", "stack_block", "unstack_block", "turn_on_lightbulb", "turn_off_lightbulb",
-     "turn_on_led", "turn_off_led", "push_into_drawer"]  # fmt: skip
+SPEC_TASK_ORDER = (
+    [
+        f"{verb}_{c}_block_{side}"
+        for verb in ("rotate", "push")
+        for c in ("red", "blue", "pink")
+        for side in ("right", "left")
+    ]
+    + ["move_slider_left", "move_slider_right", "open_drawer", "close_drawer"]
+    + [f"lift_{c}_block_{s}" for c in ("red", "blue", "pink") for s in ("table", "slider", "drawer")]
+    + [
+        "place_in_slider",
+        "place_in_drawer",
+        "stack_block",
+        "unstack_block",
+        "turn_on_lightbulb",
+        "turn_off_lightbulb",
+        "turn_on_led",
+        "turn_off_led",
+        "push_into_drawer",
+    ]
+)
 
-CHAIN0_STATE = {"led": 1, "lightbulb": 1, "slider": "left", "drawer": "open", "red_block": "slider_left",
-                "blue_block": "table", "pink_block": "slider_right", "grasped": 0}  # fmt: skip
-CHAIN0_TASKS = ("rotate_blue_block_right", "move_slider_right", "lift_red_block_slider", "place_in_slider",
-                "turn_off_lightbulb")  # fmt: skip
+CHAIN0_STATE = {
+    "led": 1,
+    "lightbulb": 1,
+    "slider": "left",
+    "drawer": "open",
+    "red_block": "slider_left",
+    "blue_block": "table",
+    "pink_block": "slider_right",
+    "grasped": 0,
+}
+CHAIN0_TASKS = (
+    "rotate_blue_block_right",
+    "move_slider_right",
+    "lift_red_block_slider",
+    "place_in_slider",
+    "turn_off_lightbulb",
+)
 
 #: Spec 4.1: task frequencies over all 5000 subtasks of the official 1000 chains.
 SPEC_FREQUENCIES = {
-    "place_in_slider": 398, "open_drawer": 379, "move_slider_right": 317, "move_slider_left": 284,
-    "close_drawer": 250, "stack_block": 220, "place_in_drawer": 208, "lift_blue_block_table": 205,
-    "turn_on_lightbulb": 202, "lift_red_block_table": 199, "turn_on_led": 195, "lift_pink_block_table": 187,
-    "turn_off_led": 185, "turn_off_lightbulb": 171, "lift_red_block_slider": 157, "lift_pink_block_slider": 156,
-    "lift_blue_block_slider": 151, "push_into_drawer": 138, "unstack_block": 81, "lift_red_block_drawer": 23,
-    "lift_blue_block_drawer": 23, "lift_pink_block_drawer": 17,
-}  # fmt: skip
+    "place_in_slider": 398,
+    "open_drawer": 379,
+    "move_slider_right": 317,
+    "move_slider_left": 284,
+    "close_drawer": 250,
+    "stack_block": 220,
+    "place_in_drawer": 208,
+    "lift_blue_block_table": 205,
+    "turn_on_lightbulb": 202,
+    "lift_red_block_table": 199,
+    "turn_on_led": 195,
+    "lift_pink_block_table": 187,
+    "turn_off_led": 185,
+    "turn_off_lightbulb": 171,
+    "lift_red_block_slider": 157,
+    "lift_pink_block_slider": 156,
+    "lift_blue_block_slider": 151,
+    "push_into_drawer": 138,
+    "unstack_block": 81,
+    "lift_red_block_drawer": 23,
+    "lift_blue_block_drawer": 23,
+    "lift_pink_block_drawer": 17,
+}
 
 
 @pytest.fixture(scope="module")
@@ -69,8 +113,16 @@ def test_fnv1_check_values() -> None:
 def test_initial_states() -> None:
     states = initial_states()
     assert len(states) == 192
-    assert states[0] == {"led": 0, "lightbulb": 0, "slider": "right", "drawer": "closed", "red_block": "table",
-                         "blue_block": "table", "pink_block": "slider_right", "grasped": 0}  # fmt: skip
+    assert states[0] == {
+        "led": 0,
+        "lightbulb": 0,
+        "slider": "right",
+        "drawer": "closed",
+        "red_block": "table",
+        "blue_block": "table",
+        "pink_block": "slider_right",
+        "grasped": 0,
+    }
     for state in states:
         blocks = [state[f"{c}_block"] for c in ("red", "blue", "pink")]
         assert blocks.count("table") in (1, 2)
@@ -160,8 +212,16 @@ def test_scene_obs_is_a_function_of_the_state(official_chains: list[Chain]) -> N
         by_state.setdefault(key, chain.scene_obs)
         np.testing.assert_array_equal(chain.scene_obs, by_state[key])
     assert len(by_state) == 192
-    blue_on_table = {"led": 0, "lightbulb": 0, "slider": "right", "drawer": "closed", "red_block": "table",
-                     "blue_block": "table", "pink_block": "slider_left", "grasped": 0}  # fmt: skip
+    blue_on_table = {
+        "led": 0,
+        "lightbulb": 0,
+        "slider": "right",
+        "drawer": "closed",
+        "red_block": "table",
+        "blue_block": "table",
+        "pink_block": "slider_left",
+        "grasped": 0,
+    }
     obs = scene_obs_for_state(blue_on_table)
     assert not np.allclose(obs[6:9], obs[12:15])  # red and blue take the two different table slots
     assert obs[0] == 0.0 and obs[1] == 0.0 and obs[3] == 0.0

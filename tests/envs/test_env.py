@@ -1,4 +1,5 @@
-"""CalvinEnv: gymnasium contract, determinism, pickling, vector envs, chain scoring, single tasks, bad inputs."""
+"""CalvinEnv: gymnasium contract, determinism, pickling, vector envs, chain scoring, single tasks, bad
+inputs."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Scripted CALVIN expert: solves tasks (the oracle fires), valid start states, action contract, determinism."""
+"""Scripted CALVIN expert: solves tasks (the oracle fires), valid start states, action contract,
+determinism."""
 
 from __future__ import annotations
 
@@ -115,8 +116,8 @@ def test_tilted_euler_points_fingers_forward() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("task", TASK_NAMES)
 def test_expert_success_rate_per_task(sim: CalvinSimulation, task: str) -> None:
-    # The issue's criterion and benchmarks/expert_success.py's protocol: 20 random valid starts per task, episode
-    # i seeded with [i, task id], success = the oracle fires within 360 steps, at least 90 % per task.
+    # The issue's criterion and benchmarks/expert_success.py's protocol: 20 random valid starts per task,
+    # episode i seeded with [i, task id], success = the oracle fires within 360 steps, at least 90 % per task.
     episodes = 20
     seeds = ([episode, TASK_NAMES.index(task)] for episode in range(episodes))
     successes = sum(_rollout(sim, task, seed)[0] for seed in seeds)

@@ -4,8 +4,8 @@
   ``pc_success`` the 5/5 rate, chain by chain (plugin guide 3.3-3.4).
 - End to end, ``lerobot-eval --env.type=calvin`` in a subprocess with a saved LeRobot policy (ACT, random tiny
   weights; the env contract does not depend on the policy; and, marked slow, a tiny SubgoalVLA checkpoint):
-  one task_id per chain, ``eval_info.json``'s ``avg_sum_reward`` equals the mean ``num_completed`` of the env's
-  JSON-lines results, videos are written.
+  one task_id per chain, ``eval_info.json``'s ``avg_sum_reward`` equals the mean ``num_completed`` of the
+  env's JSON-lines results, videos are written.
 """
 
 from __future__ import annotations
@@ -36,7 +36,8 @@ TINY = {"static_image_size": 32, "gripper_image_size": 32}
 
 
 class StandStillACT(ACTPolicy):
-    """A real LeRobot policy class whose actions stand still (gripper open); records the instructions it got."""
+    """A real LeRobot policy class whose actions stand still (gripper open); records the instructions it
+    got."""
 
     def __init__(self, config: ACTConfig) -> None:
         super().__init__(config)

@@ -33,8 +33,15 @@ def test_summary_math() -> None:
     assert info["move_slider_left"] == {"success": 1, "total": 1}  # chain 1 never reached it: not counted
     assert info["close_drawer"] == {"success": 1, "total": 2}  # chain 2 failed at once, chain 3 succeeded
     assert info["turn_off_led"] == {"success": 0, "total": 1}
-    assert set(info) == {"open_drawer", "turn_on_led", "lift_red_block_table", "place_in_drawer",
-                         "move_slider_left", "close_drawer", "turn_off_led"}  # fmt: skip
+    assert set(info) == {
+        "open_drawer",
+        "turn_on_led",
+        "lift_red_block_table",
+        "place_in_drawer",
+        "move_slider_left",
+        "close_drawer",
+        "turn_off_led",
+    }
     text = format_report(report)
     assert "LH-1:  75.0%" in text and "LH-5:  25.0%" in text and "2.250" in text
 
@@ -75,8 +82,12 @@ def test_cli_eval_info_with_chains_file(tmp_path: Path) -> None:
     chains_path = tmp_path / "chains.json"
     save_chains(chains_path, chains)
     # lerobot-eval: one task_id per chain, sum_rewards = completed subtasks (one episode each)
-    shard_a = {"per_task": [{"task_group": "calvin", "task_id": 0, "metrics": {"sum_rewards": [2.0]}},
-                            {"task_group": "calvin", "task_id": 1, "metrics": {"sum_rewards": [5.0]}}]}  # fmt: skip
+    shard_a = {
+        "per_task": [
+            {"task_group": "calvin", "task_id": 0, "metrics": {"sum_rewards": [2.0]}},
+            {"task_group": "calvin", "task_id": 1, "metrics": {"sum_rewards": [5.0]}},
+        ]
+    }
     shard_b = {"per_task": [{"task_group": "calvin", "task_id": 7, "metrics": {"sum_rewards": [0.0]}}]}
     (tmp_path / "a.json").write_text(json.dumps(shard_a))
     (tmp_path / "b.json").write_text(json.dumps(shard_b))

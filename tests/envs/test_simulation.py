@@ -1,4 +1,5 @@
-"""CalvinSimulation: determinism, reset from state, action semantics, cameras, info, errors (calvin-spec 1.4-3.8)."""
+"""CalvinSimulation: determinism, reset from state, action semantics, cameras, info, errors (calvin-spec
+1.4-3.8)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,24 @@ from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
 #: robot_obs every LH-MTLC chain starts from (calvin-spec 4.2).
 EVAL_ROBOT_OBS = np.array(
-    [0.02586889, -0.2313129, 0.5712808, 3.09045411, -0.02908596, 1.50013585, 0.07999963, -1.21779124, 1.03987629,
-     2.11978254, -2.34205014, -0.87015899, 1.64119093, 0.55344928, 1.0]
-)  # fmt: skip
+    [
+        0.02586889,
+        -0.2313129,
+        0.5712808,
+        3.09045411,
+        -0.02908596,
+        1.50013585,
+        0.07999963,
+        -1.21779124,
+        1.03987629,
+        2.11978254,
+        -2.34205014,
+        -0.87015899,
+        1.64119093,
+        0.55344928,
+        1.0,
+    ]
+)
 
 
 def eval_scene_obs() -> np.ndarray:
@@ -153,17 +169,29 @@ def test_info_structure(sim):
     info = sim.get_info()
     robot = info["robot_info"]
     assert set(robot) == {
-        "tcp_pos", "tcp_orn", "gripper_opening_width", "arm_joint_states", "gripper_action", "uid", "contacts"
-    }  # fmt: skip
+        "tcp_pos",
+        "tcp_orn",
+        "gripper_opening_width",
+        "arm_joint_states",
+        "gripper_action",
+        "uid",
+        "contacts",
+    }
     assert robot["uid"] == 0 and len(robot["arm_joint_states"]) == 7
     scene = info["scene_info"]
     assert set(scene) == {"fixed_objects", "movable_objects", "doors", "lights", "buttons", "switches"}
     table = scene["fixed_objects"]["table"]
     assert table["uid"] == 5
     assert table["links"] == {
-        "base_link": -1, "button_link": 0, "switch_link": 1, "slide_link": 2, "drawer_link": 3, "led_link": 4,
-        "light_link": 5, "plank_link": 6,
-    }  # fmt: skip
+        "base_link": -1,
+        "button_link": 0,
+        "switch_link": 1,
+        "slide_link": 2,
+        "drawer_link": 3,
+        "led_link": 4,
+        "light_link": 5,
+        "plank_link": 6,
+    }
     assert list(scene["movable_objects"]) == ["block_red", "block_blue", "block_pink"]
     assert [b["uid"] for b in scene["movable_objects"].values()] == [2, 3, 4]
     red = scene["movable_objects"]["block_red"]

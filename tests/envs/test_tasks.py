@@ -15,8 +15,16 @@ from lerobot_subgoalvla.envs.calvin.oracle.tasks import TASK_SPECS, TaskOracle
 
 ROBOT, TABLE = 1, 2
 BLOCK_UIDS = {"block_red": 3, "block_blue": 4, "block_pink": 5}
-LINKS = {"base_link": -1, "button_link": 0, "switch_link": 1, "slide_link": 2, "drawer_link": 3, "led_link": 4,
-         "light_link": 5, "plank_link": 6}  # fmt: skip
+LINKS = {
+    "base_link": -1,
+    "button_link": 0,
+    "switch_link": 1,
+    "slide_link": 2,
+    "drawer_link": 3,
+    "led_link": 4,
+    "light_link": 5,
+    "plank_link": 6,
+}
 BASE, DRAWER, PLANK = LINKS["base_link"], LINKS["drawer_link"], LINKS["plank_link"]
 COLORS = ("red", "blue", "pink")
 
@@ -25,27 +33,65 @@ Info = dict[str, Any]
 
 def contact(body: int, link: int = -1) -> tuple:
     """A pybullet contact tuple: c[2] = other body, c[4] = other body's link."""
-    return (0, 0, body, -1, link, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 0.0, 1.0, 0.0, (1, 0, 0), 0.0,
-            (0, 1, 0))  # fmt: skip
+    return (
+        0,
+        0,
+        body,
+        -1,
+        link,
+        (0.0, 0.0, 0.0),
+        (0.0, 0.0, 0.0),
+        (0.0, 0.0, 1.0),
+        0.0,
+        1.0,
+        0.0,
+        (1, 0, 0),
+        0.0,
+        (0, 1, 0),
+    )
 
 
-def block(x: float = 0.0, z: float = 0.0, yaw_deg: float = 0.0, contacts: tuple = ((TABLE, BASE),),
-          tilt_deg: float = 0.0, lin_vel: float = 0.0, ang_vel: float = 0.0) -> dict:  # fmt: skip
+def block(
+    x: float = 0.0,
+    z: float = 0.0,
+    yaw_deg: float = 0.0,
+    contacts: tuple = ((TABLE, BASE),),
+    tilt_deg: float = 0.0,
+    lin_vel: float = 0.0,
+    ang_vel: float = 0.0,
+) -> dict:
     orn = Rotation.from_euler("xyz", [tilt_deg, 0.0, yaw_deg], degrees=True).as_quat()
-    return {"current_pos": np.array([x, 0.0, z]), "current_orn": orn, "current_lin_vel": np.full(3, lin_vel),
-            "current_ang_vel": np.full(3, ang_vel), "contacts": [contact(*c) for c in contacts]}  # fmt: skip
+    return {
+        "current_pos": np.array([x, 0.0, z]),
+        "current_orn": orn,
+        "current_lin_vel": np.full(3, lin_vel),
+        "current_ang_vel": np.full(3, ang_vel),
+        "contacts": [contact(*c) for c in contacts],
+    }
 
 
-def make_info(blocks: dict[str, dict] | None = None, robot_contacts: tuple = (), slide: float = 0.0,
-              drawer: float = 0.0, lightbulb: int = 0, led: int = 0) -> Info:  # fmt: skip
+def make_info(
+    blocks: dict[str, dict] | None = None,
+    robot_contacts: tuple = (),
+    slide: float = 0.0,
+    drawer: float = 0.0,
+    lightbulb: int = 0,
+    led: int = 0,
+) -> Info:
     """A CALVIN info dict (spec 2.1); every block rests on the table's base unless overridden."""
     movable = {name: {**block(), "uid": uid} for name, uid in BLOCK_UIDS.items()}
     for name, state in (blocks or {}).items():
         movable[name] = {**state, "uid": BLOCK_UIDS[name]}
     return {
-        "robot_info": {"tcp_pos": np.zeros(3), "tcp_orn": np.zeros(3), "gripper_opening_width": 0.08,
-                       "arm_joint_states": np.zeros(7), "gripper_action": 1, "uid": ROBOT,
-                       "contacts": [contact(*c) for c in robot_contacts]},
+        "robot_info": {
+            "tcp_pos": np.zeros(3),
+            "tcp_orn": np.zeros(3),
+            "gripper_opening_width": 0.08,
+            "arm_joint_states": np.zeros(7),
+            "gripper_action": 1,
+            "uid": ROBOT,
+            "contacts": [contact(*c) for c in robot_contacts],
+        },
         "scene_info": {
             "fixed_objects": {"table": {"uid": TABLE, "links": dict(LINKS), "contacts": []}},
             "movable_objects": movable,
@@ -54,7 +100,7 @@ def make_info(blocks: dict[str, dict] | None = None, robot_contacts: tuple = (),
             "buttons": {"base__button": {"joint_state": 0.0, "logical_state": led}},
             "switches": {"base__switch": {"joint_state": 0.088 * lightbulb, "logical_state": lightbulb}},
         },
-    }  # fmt: skip
+    }
 
 
 Case = tuple[Info, Info, Info, Info]  # (start, end that fires, near-miss start, near-miss end)
@@ -81,8 +127,12 @@ def _lift(color: str, link: int, dz: float) -> Case:
     name = f"block_{color}"
     start = make_info({name: block(z=0.0, contacts=((TABLE, link),))})
     held = ((ROBOT, 10),)
-    return (start, make_info({name: block(z=dz + 1e-4, contacts=held)}), start,
-            make_info({name: block(z=dz, contacts=held)}))  # fmt: skip
+    return (
+        start,
+        make_info({name: block(z=dz + 1e-4, contacts=held)}),
+        start,
+        make_info({name: block(z=dz, contacts=held)}),
+    )
 
 
 def _door(key: str, start: float, end: float, miss: float) -> Case:
@@ -92,8 +142,12 @@ def _door(key: str, start: float, end: float, miss: float) -> Case:
 
 def _place(link: int, miss_link: int) -> Case:
     start = make_info({"block_red": block(z=0.1, contacts=((ROBOT, 10),))}, robot_contacts=((3, -1),))
-    return (start, make_info({"block_red": block(contacts=((TABLE, link),))}), start,
-            make_info({"block_red": block(contacts=((TABLE, miss_link),))}))  # fmt: skip
+    return (
+        start,
+        make_info({"block_red": block(contacts=((TABLE, link),))}),
+        start,
+        make_info({"block_red": block(contacts=((TABLE, miss_link),))}),
+    )
 
 
 def _light(key: str, before: int, after: int) -> Case:
@@ -104,8 +158,12 @@ def _light(key: str, before: int, after: int) -> Case:
 def _stack() -> Case:
     on_blue = ((4, -1),)  # end velocity exactly 1 is not "at rest" (strict <)
     start = make_info()
-    return (start, make_info({"block_red": block(contacts=on_blue, lin_vel=0.99, ang_vel=-0.99)}), start,
-            make_info({"block_red": block(contacts=on_blue, lin_vel=1.0)}))  # fmt: skip
+    return (
+        start,
+        make_info({"block_red": block(contacts=on_blue, lin_vel=0.99, ang_vel=-0.99)}),
+        start,
+        make_info({"block_red": block(contacts=on_blue, lin_vel=1.0)}),
+    )
 
 
 def _unstack() -> Case:
@@ -117,7 +175,8 @@ def _unstack() -> Case:
 
 
 def _push_into() -> Case:
-    # robot contact at the end is allowed (CALVIN's robot test is a no-op); a robot contact at the start is not
+    # robot contact at the end is allowed (CALVIN's robot test is a no-op); a
+    # robot contact at the start is not
     start = make_info({"block_pink": block(contacts=((TABLE, BASE),))})
     end = make_info({"block_pink": block(contacts=((TABLE, DRAWER), (ROBOT, 9)))})
     miss_start = make_info({"block_pink": block(contacts=((TABLE, BASE), (ROBOT, 9)))})
@@ -125,16 +184,25 @@ def _push_into() -> Case:
 
 
 CASES: dict[str, Callable[[], Case]] = {
-    **{f"rotate_{c}_block_{side}": (lambda c=c, s=s: _rotate(c, s)) for c in COLORS
-       for side, s in (("right", -1.0), ("left", 1.0))},
-    **{f"push_{c}_block_{side}": (lambda c=c, s=s: _push(c, s)) for c in COLORS
-       for side, s in (("right", 1.0), ("left", -1.0))},
+    **{
+        f"rotate_{c}_block_{side}": (lambda c=c, s=s: _rotate(c, s))
+        for c in COLORS
+        for side, s in (("right", -1.0), ("left", 1.0))
+    },
+    **{
+        f"push_{c}_block_{side}": (lambda c=c, s=s: _push(c, s))
+        for c in COLORS
+        for side, s in (("right", 1.0), ("left", -1.0))
+    },
     "move_slider_left": lambda: _door("slide", 0.0, 0.1501, 0.15),
     "move_slider_right": lambda: _door("slide", 0.15, -0.0001, 0.0),
     "open_drawer": lambda: _door("drawer", 0.0, 0.1201, 0.12),
     "close_drawer": lambda: _door("drawer", 0.12, -0.0001, 0.0),
-    **{f"lift_{c}_block_{surface}": (lambda c=c, link=link, dz=dz: _lift(c, link, dz)) for c in COLORS
-       for surface, link, dz in (("table", BASE, 0.05), ("slider", PLANK, 0.03), ("drawer", DRAWER, 0.05))},
+    **{
+        f"lift_{c}_block_{surface}": (lambda c=c, link=link, dz=dz: _lift(c, link, dz))
+        for c in COLORS
+        for surface, link, dz in (("table", BASE, 0.05), ("slider", PLANK, 0.03), ("drawer", DRAWER, 0.05))
+    },
     "place_in_slider": lambda: _place(PLANK, DRAWER),
     "place_in_drawer": lambda: _place(DRAWER, PLANK),
     "stack_block": _stack,
@@ -144,7 +212,7 @@ CASES: dict[str, Callable[[], Case]] = {
     "turn_on_led": lambda: _light("led", 0, 1),
     "turn_off_led": lambda: _light("led", 1, 0),
     "push_into_drawer": _push_into,
-}  # fmt: skip
+}
 
 
 def test_every_task_has_a_case_and_a_spec() -> None:
@@ -235,8 +303,16 @@ def test_oracle_reads_the_simulator_info() -> None:
     from lerobot_subgoalvla.envs.calvin.evaluation.chains import EVAL_ROBOT_OBS, scene_obs_for_state
     from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
-    state = {"led": 0, "lightbulb": 0, "slider": "right", "drawer": "closed", "red_block": "table",
-             "blue_block": "slider_left", "pink_block": "table", "grasped": 0}  # fmt: skip
+    state = {
+        "led": 0,
+        "lightbulb": 0,
+        "slider": "right",
+        "drawer": "closed",
+        "red_block": "table",
+        "blue_block": "slider_left",
+        "pink_block": "table",
+        "grasped": 0,
+    }
     start_obs = scene_obs_for_state(state)
     end_obs = start_obs.copy()
     end_obs[[0, 1, 3, 4, 5]] = [0.2, 0.2, 0.088, 1.0, 1.0]  # slider left, drawer open, both lights on
@@ -251,7 +327,11 @@ def test_oracle_reads_the_simulator_info() -> None:
                 sim.step(idle)
             infos.append(sim.get_info())
     assert TaskOracle().completed_tasks(*infos) == {
-        "move_slider_left", "open_drawer", "turn_on_lightbulb", "turn_on_led", "push_red_block_right",
+        "move_slider_left",
+        "open_drawer",
+        "turn_on_lightbulb",
+        "turn_on_led",
+        "push_red_block_right",
         "rotate_pink_block_right",
-    }  # fmt: skip
+    }
     assert TaskOracle().completed_tasks(infos[0], infos[0]) == set()

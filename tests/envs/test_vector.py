@@ -67,7 +67,8 @@ def test_env_worker_imports_neither_torch_nor_lerobot() -> None:
 
 
 def test_light_commands_answer_help_without_torch() -> None:
-    """The commands that need no model import neither torch nor LeRobot (their --help answers in well under 1 s;
+    """The commands that need no model import neither torch nor LeRobot (their --help answers in well under 1
+    s;
     benchmarks/import_time.py measures it)."""
     modules = (
         "lerobot_subgoalvla.envs.calvin.evaluation.report",
@@ -82,7 +83,8 @@ def test_light_commands_answer_help_without_torch() -> None:
             sys.argv = [name, "--help"]
             with contextlib.suppress(SystemExit), contextlib.redirect_stdout(io.StringIO()):
                 importlib.import_module(name).main()
-        print(",".join(m for m in ("torch", "transformers", "lerobot", "matplotlib") if m in sys.modules) or "light")
+        heavy = [m for m in ("torch", "transformers", "lerobot", "matplotlib") if m in sys.modules]
+        print(",".join(heavy) or "light")
         """
     )
     result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)

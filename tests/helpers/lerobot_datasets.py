@@ -1,15 +1,16 @@
 """A factory for tiny CALVIN-style LeRobotDatasets that follow the data contract (DESIGN.md "Data contract").
 
-The frames are synthetic but consistent: the robot state integrates the actions (so actions are predictable from
-state changes), the cameras show the episode's colour with a bright square at a state-dependent position, and the
-history / trace columns are computed with the project's own ``subgoal_traces`` functions, exactly as the converter
-does. Built with LeRobot's write protocol (``create`` -> ``add_frame`` -> ``save_episode`` -> ``finalize``).
+The frames are synthetic but consistent: the robot state integrates the actions (so actions are predictable
+from state changes), the cameras show the episode's colour with a bright square at a state-dependent position,
+and the history / trace columns are computed with the project's own ``subgoal_traces`` functions, exactly as
+the converter does. Built with LeRobot's write protocol (``create`` -> ``add_frame`` -> ``save_episode`` ->
+``finalize``).
 
 Usage::
 
     from helpers.lerobot_datasets import make_tiny_calvin_dataset
-    ds = make_tiny_calvin_dataset(tmp_path / "ds", num_episodes=2, episode_len=12, static_size=32, gripper_size=16)
-    # lerobot-train --dataset.repo_id=local/tiny_calvin --dataset.root=<tmp_path/ds>
+    ds = make_tiny_calvin_dataset(tmp_path / "ds", num_episodes=2, episode_len=12, static_size=32,
+    gripper_size=16) # lerobot-train --dataset.repo_id=local/tiny_calvin --dataset.root=<tmp_path/ds>
 """
 
 from __future__ import annotations

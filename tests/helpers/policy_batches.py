@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-#: What ``lerobot-eval`` gives a policy after preprocessing: cameras, state, language tokens and the task; the env
+#: What ``lerobot-eval`` gives a policy after preprocessing: cameras, state,
+#: language tokens and the task; the env
 #: provides neither the state history nor the subgoal trace.
 INFERENCE_KEYS = (
     "observation.images.static",

@@ -1,4 +1,5 @@
-"""Fixtures for the SubgoalVLA policy tests: one tiny data-contract dataset per session, config/policy factories.
+"""Fixtures for the SubgoalVLA policy tests: one tiny data-contract dataset per session, config/policy
+factories.
 
 Everything is tiny (32x32 static / 16x16 gripper images, the ``tiny`` preset), offline and on the CPU.
 """

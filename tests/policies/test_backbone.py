@@ -1,4 +1,5 @@
-"""VLMBackbone: layer-k hidden states, padding mask, frozen vision tower, offline from_pretrained, input helpers."""
+"""VLMBackbone: layer-k hidden states, padding mask, frozen vision tower, offline from_pretrained, input
+helpers."""
 
 from __future__ import annotations
 
@@ -93,7 +94,7 @@ def test_backbone_returns_layer_k_hidden_states_and_mask() -> None:
 
 
 def test_vision_tower_is_frozen_and_stays_in_eval_mode() -> None:
-    backbone = VLMBackbone(None, freeze_vision_tower=True)
+    backbone = VLMBackbone(None, freeze_vision_tower=True, tiny=TINY)
     backbone.train()
     assert not backbone.vlm.vision_tower.training
     assert backbone.vlm.language_model.training
@@ -113,7 +114,7 @@ def test_vision_tower_is_frozen_and_stays_in_eval_mode() -> None:
 
 
 def test_padding_does_not_change_valid_hidden_states() -> None:
-    backbone = VLMBackbone(None).eval()
+    backbone = VLMBackbone(None, tiny=TINY).eval()
     ids, mask, pixels = _inputs(backbone, batch=1)
     padded_ids = torch.cat([ids, torch.full((1, 5), 0)], dim=1)
     padded_mask = torch.cat([mask, torch.zeros(1, 5, dtype=mask.dtype)], dim=1)
@@ -164,7 +165,8 @@ def test_from_pretrained_path_loads_offline(tmp_path: Path) -> None:
 
 
 def _interleave_like_config(**dims: int) -> LlavaConfig:
-    """llava-interleave-qwen-0.5b's layout (SigLIP, no CLS, "full" features from the last layer, Qwen2 LLM)."""
+    """llava-interleave-qwen-0.5b's layout (SigLIP, no CLS, "full" features from the last layer, Qwen2
+    LLM)."""
     vision = SiglipVisionConfig(
         hidden_size=dims.get("vision_hidden", 1152),
         intermediate_size=dims.get("vision_mlp", 4304),
@@ -203,11 +205,21 @@ def test_input_spec_counts_image_tokens_of_the_real_presets() -> None:
 
 
 def test_siglip_qwen_architecture_runs_at_tiny_dims() -> None:
-    """The small preset's architecture (SigLIP + Qwen2, "full" features), shrunk: H[k] and mask come out right."""
+    """The small preset's architecture (SigLIP + Qwen2, "full" features), shrunk: H[k] and mask come out
+    right."""
     config = _interleave_like_config(
-        vision_hidden=32, vision_mlp=64, vision_layers=2, vision_heads=2, image_size=28,
-        vocab=64, text_hidden=32, text_mlp=64, text_layers=4, text_heads=4, image_token=63,
-    )  # fmt: skip
+        vision_hidden=32,
+        vision_mlp=64,
+        vision_layers=2,
+        vision_heads=2,
+        image_size=28,
+        vocab=64,
+        text_hidden=32,
+        text_mlp=64,
+        text_layers=4,
+        text_heads=4,
+        image_token=63,
+    )
     backbone = VLMBackbone(None, vlm_config=config).eval()
     spec = backbone.input_spec
     assert spec.num_image_tokens == 4 and backbone.layer == 2

@@ -39,8 +39,11 @@ def test_loss_is_finite_and_backpropagates() -> None:
 
 
 def test_loss_weights_timesteps_and_adds_l2_penalty() -> None:
-    """With eps_hat = 0 the per-sample error is mean(eps^2); check the (1 - t/T) weights and the l2 term exactly."""
-    objective = DiffusionObjective(num_inference_steps=8, num_train_timesteps=8, repeats=8, l2_weight=0.5, cond_dropout_prob=0.0)
+    """With eps_hat = 0 the per-sample error is mean(eps^2); check the (1 - t/T) weights and the l2 term
+    exactly."""
+    objective = DiffusionObjective(
+        num_inference_steps=8, num_train_timesteps=8, repeats=8, l2_weight=0.5, cond_dropout_prob=0.0
+    )
     x0, cond = torch.randn(4, 5, 7), torch.randn(4, 2, 16)
     gen = torch.Generator().manual_seed(3)
     denoiser = ConstantDenoiser(0.0)
@@ -59,15 +62,17 @@ def test_loss_weights_timesteps_and_adds_l2_penalty() -> None:
 
 
 def test_padded_targets_do_not_contribute() -> None:
-    objective = DiffusionObjective(num_train_timesteps=8, num_inference_steps=8, repeats=2, cond_dropout_prob=0.0)
+    objective = DiffusionObjective(
+        num_train_timesteps=8, num_inference_steps=8, repeats=2, cond_dropout_prob=0.0
+    )
     model = _dit()
     x0, cond = torch.randn(2, 15, 7), torch.randn(2, 3, 16)
     valid = torch.ones(2, 15, dtype=torch.bool)
     valid[:, 10:] = False
     changed = x0.clone()
     changed[:, 10:] += 100.0
-    # The DiT sees all tokens, so padded targets still change predictions of valid steps a little; what must hold
-    # is that the padded steps' own error is excluded: compare against a denoiser-independent check.
+    # The DiT sees all tokens, so padded targets still change predictions of valid steps a little; what must
+    # hold is that the padded steps' own error is excluded: compare against a denoiser-independent check.
     loss_a = objective.compute_loss(
         ConstantDenoiser(0.0), x0, cond, None, valid, torch.Generator().manual_seed(0)
     )
@@ -94,7 +99,9 @@ def test_cfg_with_scale_one_equals_conditional_prediction() -> None:
 
 @pytest.mark.parametrize("guidance_scale", [1.0, 2.0])
 def test_ddim_sample_shapes_and_seeded_determinism(guidance_scale: float) -> None:
-    objective = DiffusionObjective(num_train_timesteps=8, num_inference_steps=4, guidance_scale=guidance_scale)
+    objective = DiffusionObjective(
+        num_train_timesteps=8, num_inference_steps=4, guidance_scale=guidance_scale
+    )
     model = _dit().eval()
     cond = torch.randn(2, 4, 16)
     a = objective.sample(model, (2, 15, 7), cond, generator=torch.Generator().manual_seed(1))
@@ -142,12 +149,15 @@ def test_ddim_recovers_data_from_an_oracle_denoiser(steps: int) -> None:
 
 def test_clipping_keeps_samples_bounded_at_the_terminal_noise_level() -> None:
     """With alpha_bar_7 = 3.7e-5 an imperfect noise prediction explodes unclipped DDIM; clipping bounds it."""
-    assert DiffusionObjective(num_train_timesteps=8, num_inference_steps=8).noise_scheduler.alphas_cumprod[-1] < 1e-4
+    assert (
+        DiffusionObjective(num_train_timesteps=8, num_inference_steps=8).noise_scheduler.alphas_cumprod[-1]
+        < 1e-4
+    )
     cond = torch.zeros(2, 1, 16)
     gen = torch.Generator().manual_seed(0)
-    unclipped = DiffusionObjective(num_train_timesteps=8, num_inference_steps=8, clip_sample_range=None).sample(
-        ConstantDenoiser(0.0), (2, 15, 7), cond, generator=gen
-    )
+    unclipped = DiffusionObjective(
+        num_train_timesteps=8, num_inference_steps=8, clip_sample_range=None
+    ).sample(ConstantDenoiser(0.0), (2, 15, 7), cond, generator=gen)
     gen = torch.Generator().manual_seed(0)
     clipped = DiffusionObjective(num_train_timesteps=8, num_inference_steps=8, clip_sample_range=1.0).sample(
         ConstantDenoiser(0.0), (2, 15, 7), cond, generator=gen

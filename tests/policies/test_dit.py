@@ -71,7 +71,8 @@ def test_label_dropout_replaces_condition_with_null_token() -> None:
 
 
 def test_dit_b_parameter_count() -> None:
-    """DiT-B dims (768 x 12, 12 heads): 85M in attention + MLP, as the paper's 86M; adaLN-zero adds 6 D^2/block."""
+    """DiT-B dims (768 x 12, 12 heads): 85M in attention + MLP, as the paper's 86M; adaLN-zero adds 6
+    D^2/block."""
     with torch.device("meta"):
         model = DiT(input_dim=15, cond_dim=4096, hidden_dim=768, depth=12, num_heads=12)
     body = sum(count_parameters(b.attn) + count_parameters(b.mlp) for b in model.blocks)

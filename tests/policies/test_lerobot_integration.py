@@ -1,4 +1,5 @@
-"""SubgoalVLA inside LeRobot: plugin discovery, ``lerobot-train`` (stages, checkpoints, resume, accelerate), Hub errors.
+"""SubgoalVLA inside LeRobot: plugin discovery, ``lerobot-train`` (stages, checkpoints, resume, accelerate),
+Hub errors.
 
 The CLI tests run LeRobot's own console scripts as subprocesses on the tiny dataset, like a user would.
 """
@@ -135,7 +136,8 @@ def test_lerobot_train_resume_continues_from_the_last_checkpoint(trained_run: tu
 def test_stage_two_run_starts_from_a_stage_one_checkpoint(
     trained_run: tuple[Path, str], tiny_dataset_root, tmp_path
 ):
-    """``--policy.path=<stage I checkpoint> --policy.stage=stage2``: LeRobot's fine-tuning path (processors reloaded
+    """``--policy.path=<stage I checkpoint> --policy.stage=stage2``: LeRobot's fine-tuning path (processors
+    reloaded
     with the dataset's statistics as overrides)."""
     output_dir, _ = trained_run
     checkpoint = output_dir / "checkpoints" / "000008" / "pretrained_model"
@@ -179,9 +181,9 @@ def test_lerobot_eval_runs_a_checkpoint_on_the_calvin_env(
 def test_accelerate_launch_two_cpu_processes(tiny_dataset_root: Path, tmp_path: Path) -> None:
     """DDP over gloo on the CPU, across the stage switch (the frozen backbone gets no gradient in stage II).
 
-    ``accelerate launch --cpu --num_processes 2`` starts ONE process (accelerate's simple launcher); on a CPU-only
-    machine ``--multi_gpu --num_processes 2`` starts two torchrun workers and LeRobot's ``Accelerator(cpu=True)``
-    makes them a gloo process group.
+    ``accelerate launch --cpu --num_processes 2`` starts ONE process (accelerate's simple launcher); on a
+    CPU-only machine ``--multi_gpu --num_processes 2`` starts two torchrun workers and LeRobot's
+    ``Accelerator(cpu=True)`` makes them a gloo process group.
     """
     output_dir = tmp_path / "ddp"
     flags = [

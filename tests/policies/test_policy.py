@@ -1,4 +1,5 @@
-"""SubgoalVLAPolicy: training losses and stages, optimizer groups, ablations, inference queue/history, save/load."""
+"""SubgoalVLAPolicy: training losses and stages, optimizer groups, ablations, inference queue/history,
+save/load."""
 
 from __future__ import annotations
 

@@ -50,7 +50,8 @@ def test_history_and_trace_use_the_state_statistics(make_config, make_processors
     mean, std = _state_stats(tiny_dataset)
     for key in (STATE, HISTORY, TRACE):
         torch.testing.assert_close(out[key], _expected_proprio(raw_batch[key], mean, std))
-    # LeRobot's own pooled statistics of the history column differ, so this is a real choice, not a coincidence
+    # LeRobot's own pooled statistics of the history column differ, so this is a real choice, not a
+    # coincidence
     own = tiny_dataset.meta.stats[HISTORY]
     assert not torch.allclose(torch.as_tensor(own["mean"]).float(), mean)
     assert (
@@ -108,7 +109,8 @@ def test_saved_pipelines_reload_for_evaluation(make_config, make_processors, raw
 
 def test_finetuning_stat_overrides_keep_the_sharing(make_config, make_processors, raw_batch, tmp_path):
     """``lerobot-train --policy.path=...`` overrides the normaliser's stats with the raw dataset stats: the
-    proprioception is normalised by our own step, so its numbers stay those of the checkpoint (never twice)."""
+    proprioception is normalised by our own step, so its numbers stay those of the checkpoint (never
+    twice)."""
     cfg = make_config()
     pre, post = make_processors(cfg)
     pre.save_pretrained(tmp_path)

@@ -1,4 +1,5 @@
-"""The two-stage learning-rate schedule and the proprioceptive normaliser (continuous angles, exact inverse)."""
+"""The two-stage learning-rate schedule and the proprioceptive normaliser (continuous angles, exact
+inverse)."""
 
 from __future__ import annotations
 

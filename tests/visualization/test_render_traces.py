@@ -1,4 +1,5 @@
-"""subgoalvla-render-traces: a saved tiny checkpoint rolled out in CalvinEnv, its traces drawn as ghost robots."""
+"""subgoalvla-render-traces: a saved tiny checkpoint rolled out in CalvinEnv, its traces drawn as ghost
+robots."""
 
 from __future__ import annotations
 

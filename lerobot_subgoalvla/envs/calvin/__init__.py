@@ -8,9 +8,9 @@ Sub-packages, in dependency order (each imports only those above it):
 - ``expert/``: the scripted expert and the per-task start states it can solve from.
 
 On top: ``env.py`` (the gymnasium env), ``vector.py`` (vector envs for ``lerobot-eval``) and ``configs.py``
-(``CalvinEnvConfig``, the only module that imports LeRobot's env machinery). ``protocol.py`` holds the benchmark's
-fixed numbers. Importing this package registers the gymnasium id ``lerobot_subgoalvla/Calvin-v0`` and nothing
-heavier (gymnasium registration is lazy: the env module is imported by ``gymnasium.make``).
+(``CalvinEnvConfig``, the only module that imports LeRobot's env machinery). ``protocol.py`` holds the
+benchmark's fixed numbers. Importing this package registers the gymnasium id ``lerobot_subgoalvla/Calvin-v0``
+and nothing heavier (gymnasium registration is lazy: the env module is imported by ``gymnasium.make``).
 """
 
 import gymnasium as gym

@@ -4,14 +4,14 @@
 (``task="lh_mtlc"``, CALVIN's evaluation protocol, calvin-spec section 4) there is one ``task_id`` per chain,
 equal to the chain id, so ``lerobot-eval --eval.n_episodes=1`` runs every chain of ``[chain_start,
 chain_stop)`` exactly once; disjoint chain ranges shard an evaluation across processes or machines. In the
-single-task mode (``task=<one of the 34 task names>``) there is one ``task_id``, the task's CALVIN id, and each
-episode starts from a random valid state drawn from the episode's seed.
+single-task mode (``task=<one of the 34 task names>``) there is one ``task_id``, the task's CALVIN id, and
+each episode starts from a random valid state drawn from the episode's seed.
 
-All task_ids share the simulators: each task_id is a view (``vector.TaskView``) on one lazily built vector env per
-evaluating thread (``vector.SharedVectorEnvs``); a chain's view pins its ``chain_id`` into every ``reset``.
-``lerobot-eval`` builds all 1000 task_ids up front and evaluates them one after the other (or
-``max_parallel_tasks`` at a time, one thread each), so one set of simulators (and, with async envs, one pool of
-worker processes) per thread serves all chains, instead of 1000 of them being started, or kept alive.
+All task_ids share the simulators: each task_id is a view (``vector.TaskView``) on one lazily built vector env
+per evaluating thread (``vector.SharedVectorEnvs``); a chain's view pins its ``chain_id`` into every
+``reset``. ``lerobot-eval`` builds all 1000 task_ids up front and evaluates them one after the other (or
+``max_parallel_tasks`` at a time, one thread each), so one set of simulators (and, with async envs, one pool
+of worker processes) per thread serves all chains, instead of 1000 of them being started, or kept alive.
 """
 
 from __future__ import annotations
@@ -66,7 +66,8 @@ class CalvinEnvConfig(EnvConfig):
         fps: Control frequency; CALVIN steps at 30 Hz (240 Hz physics, 8 substeps), so only 30 is valid.
         scene: ``"procedural"`` (our generated desk, no files needed) or ``"calvin_A"`` ... ``"calvin_D"``
             (CALVIN's own URDFs, read from ``assets_dir``).
-        assets_dir: A clone of calvin_env (with ``data/`` and ``conf/``); required for the ``calvin_*`` scenes.
+        assets_dir: A clone of calvin_env (with ``data/`` and ``conf/``); required for the ``calvin_*``
+        scenes.
         chain_start: First chain id evaluated in ``lh_mtlc`` (inclusive).
         chain_stop: Last chain id evaluated in ``lh_mtlc`` (exclusive); at most 1000.
         episode_length: Step budget of one (sub)task; CALVIN's EP_LEN is 360 (12 s). A chain episode lasts at
@@ -111,7 +112,8 @@ class CalvinEnvConfig(EnvConfig):
             raise ValueError(f"--env.scene={self.scene!r} is not valid; use one of: {', '.join(SCENES)}")
         if self.scene != "procedural" and self.assets_dir is None:
             raise ValueError(
-                f"--env.scene={self.scene} needs --env.assets_dir=<a clone of calvin_env with data/ and conf/>"
+                f"--env.scene={self.scene} needs --env.assets_dir=<a clone of calvin_env with data/ and "
+                "conf/>"
             )
         if self.action_mode not in ACTION_MODES:
             raise ValueError(
@@ -135,7 +137,8 @@ class CalvinEnvConfig(EnvConfig):
 
     @property
     def gym_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of ``CalvinEnv``; ``create_envs`` adds the chain range and its chains (``lh_mtlc``)."""
+        """Keyword arguments of ``CalvinEnv``; ``create_envs`` adds the chain range and its chains
+        (``lh_mtlc``)."""
         return {
             "task": self.task,
             "scene": self.scene,

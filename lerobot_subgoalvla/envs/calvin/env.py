@@ -19,7 +19,7 @@ Spaces (S = static image side, G = gripper image side):
 | ``pixels/gripper`` | Box(0, 255, (G, G, 3), uint8) | gripper camera (``rgb_gripper``) |
 | ``agent_pos`` | Box(-inf, inf, (15,), float32) | ``robot_obs`` (spec 1.4) |
 | ``environment_state`` | Box(-inf, inf, (24,), float32) | ``scene_obs`` (spec 1.5) |
-| action, relative | Box(-1, 1, (7,), float32) | CALVIN ``rel_actions``: pos/0.02, euler/0.05, gripper (spec 1.6) |
+| action, relative | Box(-1, 1, (7,), float32) | ``rel_actions``: pos/0.02, euler/0.05, gripper (spec 1.6) |
 | action, absolute | Box((-inf x6, -1), (inf x6, 1), float32) | tcp pos (m), tcp euler (rad), gripper |
 
 The simulator is created on the first ``reset`` (never in ``__init__``), so constructing the env is cheap and
@@ -108,7 +108,8 @@ class CalvinEnv(gym.Env):
         max_stop = NUM_EVAL_CHAINS if chains is None else max(chains, default=-1) + 1
         if task == LH_MTLC and not 0 <= chain_start < chain_stop <= max_stop:
             raise ValueError(
-                f"Chain range [{chain_start}, {chain_stop}) is not valid; need 0 <= start < stop <= {max_stop}"
+                f"Chain range [{chain_start}, {chain_stop}) is not valid; need 0 <= start < stop <= "
+                f"{max_stop}"
             )
         if episode_length < 1:
             raise ValueError(f"episode_length={episode_length} must be >= 1")
@@ -227,9 +228,9 @@ class CalvinEnv(gym.Env):
                 gripper_size=self.gripper_size,
                 action_mode=self.action_mode,
             )
-        # CALVIN keeps the previous episode's gripper command across resets (spec 3.8), so robot_obs[14] of the
-        # first frame would depend on episode order. Reset it to the start state's (open unless robot_obs says
-        # otherwise): the same seed then gives the same episode, and chain shards are order-independent.
+        # CALVIN keeps the previous episode's gripper command across resets (spec 3.8), so robot_obs[14] of
+        # the first frame would depend on episode order. Reset it to the start state's (open unless robot_obs
+        # says otherwise): the same seed then gives the same episode, and chain shards are order-independent.
         self._sim.robot.gripper_action = 1 if robot_obs is None or robot_obs[14] > 0 else -1
         if self.is_chain_mode:
             self._chain_id = self._pick_chain(options.get("chain_id"))

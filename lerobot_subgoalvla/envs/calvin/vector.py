@@ -1,7 +1,8 @@
 """Vector envs for ``lerobot-eval``: one set of simulators per thread, shared by every task_id's view.
 
-``CalvinEnvConfig.create_envs`` (``configs.py``) gives ``lerobot-eval`` one ``TaskView`` per task_id; all views
-use one lazily built ``SharedVectorEnvs``. Sub-envs are ``FrozenAfterEpisodeEnd(CalvinEnv(...))``. This module
+``CalvinEnvConfig.create_envs`` (``configs.py``) gives ``lerobot-eval`` one ``TaskView`` per task_id; all
+views use one lazily built ``SharedVectorEnvs``. Sub-envs are ``FrozenAfterEpisodeEnd(CalvinEnv(...))``. This
+module
 imports gymnasium only: it is what a forkserver worker process imports to build its env.
 """
 
@@ -14,7 +15,8 @@ from typing import Any
 import gymnasium as gym
 from gymnasium.vector.utils import batch_space
 
-#: The reset option LeRobot's rollout sets at the start of every rollout (``lerobot.envs.utils``); its value is
+#: The reset option LeRobot's rollout sets at the start of every rollout
+#: (``lerobot.envs.utils``); its value is
 #: LeRobot's contract, checked by ``tests/envs/test_vector.py``.
 NEW_ROLLOUT_OPTION = "lerobot_new_rollout"
 
@@ -22,12 +24,13 @@ NEW_ROLLOUT_OPTION = "lerobot_new_rollout"
 class FrozenAfterEpisodeEnd(gym.Wrapper):
     """Stops simulating a sub-env once its episode ended, until the next rollout starts.
 
-    ``lerobot-eval``'s rollout steps the whole batch until every sub-env is done, and gymnasium's ``NEXT_STEP``
-    autoreset would start a finished sub-env on a new episode nobody reads. After termination or truncation
-    this wrapper answers every ``step`` with the final transition (reward 0, so padded sums stay right) and an
-    autoreset with the final observation; only a ``reset`` whose options carry ``NEW_ROLLOUT_OPTION`` (sent by
-    LeRobot at the start of each rollout) runs the env again. The behaviour of LeRobot's
-    ``FreezeAfterEpisodeEnd``, in a module that does not import LeRobot: a worker process that imported
+    ``lerobot-eval``'s rollout steps the whole batch until every sub-env is done, and gymnasium's
+    ``NEXT_STEP`` autoreset would start a finished sub-env on a new episode nobody reads. After termination or
+    truncation this wrapper answers every ``step`` with the final transition (reward 0, so padded sums stay
+    right) and an autoreset with the final observation; only a ``reset`` whose options carry
+    ``NEW_ROLLOUT_OPTION`` (sent by LeRobot at the start of each rollout) runs the env again. The behaviour of
+    LeRobot's ``FreezeAfterEpisodeEnd``, in a module that does not import LeRobot: a worker process that
+    imported
     ``lerobot.envs.utils`` would load torch and transformers (about 10 s) for nothing.
     """
 

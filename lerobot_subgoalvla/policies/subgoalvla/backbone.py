@@ -1,28 +1,30 @@
-"""Vision-language backbone: any LLaVA-style transformers VLM -> hidden states H[k] of LLM layer k (paper 4.1).
+"""Vision-language backbone: any LLaVA-style transformers VLM -> hidden states H[k] of LLM layer k (paper
+4.1).
 
-SubgoalVLA reads the contextualised states of an *intermediate* LLM layer (k = m / 2, following GR00T-N1) as keys
-and values of the proprioceptive cross-attention. We load the VLM through transformers' Auto classes (no vendored
-modeling code) and keep its base model (vision tower + multi-modal projector + language model, without the LM
-head). The decoder is TRUNCATED to its first k layers and its final norm replaced by the identity, so the LLM's
-``last_hidden_state`` IS H[k] (the output of decoder layer k, exactly ``hidden_states[k]`` of the full model) and
-layers k+1..m cost neither compute nor memory. The dropped layers are not in the state dict, and a reloaded policy
-truncates the same way, so checkpoints stay consistent.
+SubgoalVLA reads the contextualised states of an *intermediate* LLM layer (k = m / 2, following GR00T-N1) as
+keys and values of the proprioceptive cross-attention. We load the VLM through transformers' Auto classes (no
+vendored modeling code) and keep its base model (vision tower + multi-modal projector + language model,
+without the LM head). The decoder is TRUNCATED to its first k layers and its final norm replaced by the
+identity, so the LLM's ``last_hidden_state`` IS H[k] (the output of decoder layer k, exactly
+``hidden_states[k]`` of the full model) and layers k+1..m cost neither compute nor memory. The dropped layers
+are not in the state dict, and a reloaded policy truncates the same way, so checkpoints stay consistent.
 
-Supported: checkpoints of the LLaVA architecture (``model_type="llava"``, one square image) with any vision tower
-and LLM transformers provides, e.g. LLaVA-1.5 (CLIP + LLaMA, the ``paper`` preset) and LLaVA-Interleave (SigLIP +
-Qwen, the ``small`` preset). Other VLMs whose base model has ``vision_tower``, ``multi_modal_projector`` and
-``language_model.layers/norm`` load, but their own prompt/pixel conventions (PaliGemma's prefix, LLaVA-NeXT's
-tiling) are not reproduced by the input helpers. ``name_or_path=None`` builds a randomly initialised tiny LLaVA
-from a config plus an offline word-level tokenizer (``build_tiny_tokenizer``) for tests and CPU runs.
+Supported: checkpoints of the LLaVA architecture (``model_type="llava"``, one square image) with any vision
+tower and LLM transformers provides, e.g. LLaVA-1.5 (CLIP + LLaMA, the ``paper`` preset) and LLaVA-Interleave
+(SigLIP + Qwen, the ``small`` preset). Other VLMs whose base model has ``vision_tower``,
+``multi_modal_projector`` and ``language_model.layers/norm`` load, but their own prompt/pixel conventions
+(PaliGemma's prefix, LLaVA-NeXT's tiling) are not reproduced by the input helpers. ``name_or_path=None``
+builds a randomly initialised tiny LLaVA from a config plus an offline word-level tokenizer
+(``build_tiny_tokenizer``) for tests and CPU runs.
 
 Input helpers the processor and model call:
-``load_tokenizer`` / ``build_tiny_tokenizer`` - the tokenizer; ``VLMInputSpec.load`` - image size, mean/std and
-image-placeholder facts from the model config alone (no weights); ``tokenize_instructions`` - LLaVA-style input ids
-with the ``<image>`` placeholder expanded to one id per image token; ``prepare_pixel_values`` - the two cameras side by
-side, resized to the vision tower's size and normalised with its statistics.
+``load_tokenizer`` / ``build_tiny_tokenizer`` - the tokenizer; ``VLMInputSpec.load`` - image size, mean/std
+and image-placeholder facts from the model config alone (no weights); ``tokenize_instructions`` - LLaVA-style
+input ids with the ``<image>`` placeholder expanded to one id per image token; ``prepare_pixel_values`` - the
+two cameras side by side, resized to the vision tower's size and normalised with its statistics.
 
-Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``S`` VLM tokens (image placeholders + instruction),
-``E`` LLM hidden size, ``H, W`` camera image size, ``I`` vision-tower image side.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``S`` VLM tokens (image placeholders +
+instruction), ``E`` LLM hidden size, ``H, W`` camera image size, ``I`` vision-tower image side.
 """
 
 from __future__ import annotations
@@ -55,14 +57,14 @@ PAD_TOKEN, UNK_TOKEN, IMAGE_TOKEN = "<pad>", "<unk>", "<image>"
 _DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}
 
 
-# ------------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 # Tokenizer
-# ------------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 def tiny_vocabulary() -> list[str]:
     """The tiny tokenizer's words: specials, then every word of CALVIN's instructions and task names, sorted.
 
-    Covers the 389 training annotations (what the training windows carry) and the evaluation instructions (what
-    the benchmark asks), so no CALVIN instruction has an unknown word. Deterministic (depends only on
+    Covers the 389 training annotations (what the training windows carry) and the evaluation instructions
+    (what the benchmark asks), so no CALVIN instruction has an unknown word. Deterministic (depends only on
     ``calvin_vocab``), so a saved pipeline rebuilds the identical tokenizer.
     """
     splitter = pre_tokenizers.Whitespace()
@@ -89,7 +91,8 @@ def build_tiny_tokenizer() -> PreTrainedTokenizerFast:
 
 
 def load_tokenizer(name_or_path: str | None) -> PreTrainedTokenizerBase:
-    """The backbone's tokenizer: the checkpoint's own, or the tiny offline one when ``name_or_path`` is None."""
+    """The backbone's tokenizer: the checkpoint's own, or the tiny offline one when ``name_or_path`` is
+    None."""
     if name_or_path is None:
         return build_tiny_tokenizer()
     tokenizer = AutoTokenizer.from_pretrained(name_or_path)
@@ -97,11 +100,12 @@ def load_tokenizer(name_or_path: str | None) -> PreTrainedTokenizerBase:
     return tokenizer
 
 
-# ------------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 # Model config and input facts
-# ------------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 def build_tiny_llava_config(dims: TinyLlavaDims) -> LlavaConfig:
-    """A LLaVA-1.5-architecture config (CLIP vision tower, 2-layer GELU projector, LLaMA) at tiny dimensions."""
+    """A LLaVA-1.5-architecture config (CLIP vision tower, 2-layer GELU projector, LLaMA) at tiny
+    dimensions."""
     vocab = tiny_vocabulary()
     vision = CLIPVisionConfig(
         hidden_size=dims.vision_hidden_size,
@@ -141,7 +145,8 @@ def _required_tiny(tiny: TinyLlavaDims | None) -> TinyLlavaDims:
 
 
 def load_vlm_config(name_or_path: str | None, tiny: TinyLlavaDims | None = None) -> PretrainedConfig:
-    """The VLM's config without its weights (``AutoConfig`` for checkpoints, ``build_tiny_llava_config`` else)."""
+    """The VLM's config without its weights (``AutoConfig`` for checkpoints, ``build_tiny_llava_config``
+    else)."""
     if name_or_path is None:
         return build_tiny_llava_config(_required_tiny(tiny))
     return AutoConfig.from_pretrained(name_or_path)
@@ -180,7 +185,8 @@ class VLMInputSpec:
 
     @classmethod
     def load(cls, name_or_path: str | None, tiny: TinyLlavaDims | None = None) -> VLMInputSpec:
-        """Spec of a checkpoint (config + image processor, no weights) or of the tiny model (CLIP statistics)."""
+        """Spec of a checkpoint (config + image processor, no weights) or of the tiny model (CLIP
+        statistics)."""
         config = load_vlm_config(name_or_path, tiny)
         if name_or_path is None:
             return cls.from_config(config, OPENAI_CLIP_MEAN, OPENAI_CLIP_STD)
@@ -193,9 +199,10 @@ def tokenize_instructions(
 ) -> tuple[Tensor, Tensor]:
     """LLaVA-protocol input ids: ``[BOS] <image> x num_image_tokens, instruction tokens, padding``.
 
-    The image placeholder is written as ``num_image_tokens`` copies of its id (LLaVA replaces each by one visual
-    token). Instructions are truncated/right-padded to ``max_length`` tokens so every batch has the same length
-    ``S = [1 +] num_image_tokens + max_length``; causal attention means valid tokens never see the right padding.
+    The image placeholder is written as ``num_image_tokens`` copies of its id (LLaVA replaces each by one
+    visual token). Instructions are truncated/right-padded to ``max_length`` tokens so every batch has the
+    same length ``S = [1 +] num_image_tokens + max_length``; causal attention means valid tokens never see the
+    right padding.
 
     Args:
         tokenizer: from ``load_tokenizer``.
@@ -259,9 +266,9 @@ def prepare_pixel_values(
     return (pixels - mean) / std
 
 
-# ------------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 # The backbone module
-# ------------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
 def _load_base_vlm(
     name_or_path: str | None, config: PretrainedConfig | None, dtype: torch.dtype
 ) -> nn.Module:
@@ -280,12 +287,14 @@ class VLMBackbone(nn.Module):
     """A transformers VLM truncated to LLM layer k; returns H[k] and the token padding mask.
 
     Args:
-        name_or_path: Hugging Face id or local directory of a LLaVA-style checkpoint; None builds the tiny model.
+        name_or_path: Hugging Face id or local directory of a LLaVA-style checkpoint; None builds the tiny
+        model.
         layer: k, 1-based LLM layer whose output is returned; None -> m // 2 (paper section 4.1).
         freeze_vision_tower: freeze the vision encoder (no gradients, always eval mode), paper section 5.
         tiny: dimensions of the tiny model (only with ``name_or_path=None``).
         torch_dtype: weight dtype, "float32" | "bfloat16" | "float16" (or a torch.dtype).
-        vlm_config: with ``name_or_path=None``, build this architecture (random weights) instead of the tiny one;
+        vlm_config: with ``name_or_path=None``, build this architecture (random weights) instead of the tiny
+        one;
             used to size the paper/small architectures on the meta device without downloading anything.
     """
 

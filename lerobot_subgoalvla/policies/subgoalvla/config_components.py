@@ -2,8 +2,9 @@
 
 Kept apart from ``configuration_subgoalvla.py`` so that the policy config reads as one page: the backbone, one
 proprioceptive cross-attention stack and one DiT head are each a small dataclass (set on the command line with
-dotted flags such as ``--policy.planner.depth=4``), and ``PRESET_VALUES`` holds what ``--policy.preset`` fills in.
-The paper's values and the choices made where it is inconsistent are documented in ``configuration_subgoalvla``.
+dotted flags such as ``--policy.planner.depth=4``), and ``PRESET_VALUES`` holds what ``--policy.preset`` fills
+in. The paper's values and the choices made where it is inconsistent are documented in
+``configuration_subgoalvla``.
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ def require_positive(name: str, value: int | float | None) -> None:
 class TinyLlavaDims:
     """Dimensions of the randomly initialised tiny LLaVA (CLIP vision tower + LLaMA decoder).
 
-    The values come from the preset (``PRESET_VALUES``) through ``BackboneConfig.tiny_dims``; there are no defaults
-    here, so the preset table is the one place that sizes a tiny backbone.
+    The values come from the preset (``PRESET_VALUES``) through ``BackboneConfig.tiny_dims``; there are no
+    defaults here, so the preset table is the one place that sizes a tiny backbone.
     """
 
     text_hidden_size: int
@@ -44,13 +45,14 @@ class BackboneConfig:
 
     Attributes:
         name_or_path: Hugging Face id or local directory of a LLaVA-architecture checkpoint
-            (``llava-hf/llava-1.5-7b-hf`` in the paper). ``None`` builds a randomly initialised tiny LLaVA from
-            the ``text_*``/``vision_*`` dimensions below (no download).
+            (``llava-hf/llava-1.5-7b-hf`` in the paper). ``None`` builds a randomly initialised tiny LLaVA
+            from the ``text_*``/``vision_*`` dimensions below (no download).
         layer: k, the LLM layer whose hidden states H[k] feed the cross-attention. ``None`` means k = m // 2
             (m = number of LLM layers), the paper's choice; it is resolved from the loaded model.
         freeze_vision_tower: keep the vision encoder frozen (paper section 5, appendix C); its parameters are
             then not in any optimizer group. Unset: frozen, except in ``laptop`` (a random tower must learn).
-        text_hidden_size: tiny LLM hidden size d (``name_or_path=None`` only; pretrained models bring their own).
+        text_hidden_size: tiny LLM hidden size d (``name_or_path=None`` only; pretrained models bring their
+        own).
         text_num_layers: tiny LLM depth m.
         text_num_heads: tiny LLM attention heads.
         text_intermediate_size: tiny LLM MLP width.
@@ -132,18 +134,21 @@ class DiTHeadConfig:
         mlp_ratio: MLP width as a multiple of hidden_size.
         num_train_timesteps: T, diffusion timesteps of the squared-cosine schedule (8, tables 6-7).
         num_inference_steps: DDIM sampling steps (<= num_train_timesteps; see the module docstring).
-        guidance_scale: classifier-free guidance scale s (1.0 disables CFG; the paper uses s > 1 for the planner).
+        guidance_scale: classifier-free guidance scale s (1.0 disables CFG; the paper uses s > 1 for the
+        planner).
             Unset: 1.5 for the planner, 1.0 for the generator (module docstring).
         label_dropout: probability of replacing the conditioning by the learned null condition during training
             (0.1, appendix B.1); enables CFG.
         l2_weight: lambda of the L2 penalty on the predicted noise (0.001, appendix B.1).
-        repeated_diffusion_steps: timesteps sampled per training example ("repeated diffusion steps" 8, table 8;
+        repeated_diffusion_steps: timesteps sampled per training example ("repeated diffusion steps" 8, table
+        8;
             4 in ``laptop``, where the heads dominate a CPU update).
         clip_sample_range: bound on DDIM's estimate of the clean sample, in normalised units (diffusers
-            ``clip_sample_range``). Needed: the 8-step squared-cosine schedule ends at alpha_bar = 3.7e-5, so the
-            first DDIM step divides the noise-prediction error by sqrt(alpha_bar) (163x). Unset: 1.0 when the
-            head's target is MIN_MAX-normalised (it then lies in [-1, 1]: actions by default), else 4.0 (z-scores:
-            the trace under the default MEAN_STD state normalisation). Added by policy-core (model.py resolves it).
+            ``clip_sample_range``). Needed: the 8-step squared-cosine schedule ends at alpha_bar = 3.7e-5, so
+            the first DDIM step divides the noise-prediction error by sqrt(alpha_bar) (163x). Unset: 1.0 when
+            the head's target is MIN_MAX-normalised (it then lies in [-1, 1]: actions by default), else 4.0
+            (z-scores: the trace under the default MEAN_STD state normalisation). Added by policy-core
+            (model.py resolves it).
     """
 
     hidden_size: int | None = None
@@ -174,7 +179,8 @@ class DiTHeadConfig:
         if self.num_inference_steps > self.num_train_timesteps:
             raise ValueError(
                 f"--policy.{name}.num_inference_steps={self.num_inference_steps} must be <= "
-                f"--policy.{name}.num_train_timesteps={self.num_train_timesteps} (DDIM skips timesteps, it cannot add any)"
+                f"--policy.{name}.num_train_timesteps={self.num_train_timesteps} (DDIM skips timesteps, it "
+                "cannot add any)"
             )
         if self.guidance_scale < 1.0:
             raise ValueError(
@@ -186,10 +192,10 @@ class DiTHeadConfig:
             raise ValueError(f"--policy.{name}.l2_weight must be >= 0, got {self.l2_weight}")
 
 
-# --------------------------------------------------------------------------------------------------------------
-# Preset values: (dataclass attribute on SubgoalVLAConfig, field) -> value; "recipe" holds fields of the config
-# itself. Only fields that default to None are filled, and only where they are still None.
-# --------------------------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------------------------------------
+# Preset values: (dataclass attribute on SubgoalVLAConfig, field) -> value; "recipe" holds fields of the
+# config itself. Only fields that default to None are filled, and only where they are still None.
+# ------------------------------------------------------------------------------------------------------------
 _PAPER_RECIPE = {  # table 8 and section 5
     "optimizer_lr_projector": 1e-5,
     "optimizer_lr_llm": 2e-5,
@@ -197,7 +203,8 @@ _PAPER_RECIPE = {  # table 8 and section 5
     "scheduler_warmup_ratio": 0.05,
     "scheduler_decay_lr": 3e-6,
 }
-#: Short CPU runs (minutes, not days): 10x the paper's head rate, every backbone part at 3e-4 (a random backbone
+#: Short CPU runs (minutes, not days): 10x the paper's head rate, every backbone
+#: part at 3e-4 (a random backbone
 #: must learn from scratch), a short warmup and a cosine to 1 % so the last steps refine rather than jitter.
 _SHORT_RUN_RECIPE = {
     "optimizer_lr_projector": 3e-4,

@@ -14,25 +14,16 @@ rebuilds exactly the same model):
 - ``small``: a real pretrained LLaVA-architecture VLM of about 0.9B parameters
   (``llava-hf/llava-interleave-qwen-0.5b-hf``: SigLIP-so400m + Qwen1.5-0.5B) with DiT-S heads (384 x 12 x 6);
   trains on one 24 GB GPU with the vision tower frozen.
-- ``laptop``: a random LLaVA-architecture model (no download) that learns CALVIN's fixture tasks in ~20 minutes
-  on 2 CPU cores: 80 px input, a trainable vision tower (a frozen random one cannot see), small DiT heads and a
-  short-run recipe (heads 1e-3, the rest 3e-4, 2 % warmup, cosine to 1 %). The README's main command uses it.
+- ``laptop``: a random LLaVA-architecture model (no download) that learns CALVIN's fixture tasks in ~20
+  minutes on 2 CPU cores: 80 px input, a trainable vision tower (a frozen random one cannot see), small DiT
+  heads and a short-run recipe (heads 1e-3, the rest 3e-4, 2 % warmup, cosine to 1 %). The demo uses it.
 - ``tiny``: the same kind of model at the smallest sizes (32 px, 32 wide); for the unit tests and smoke runs.
 
 Precision: ``small``/``paper`` train in bf16 mixed precision (float32 weights, ``dtype=bfloat16`` = accelerate
 autocast in ``lerobot-train``); bf16 weights would round most lr-2e-5 updates away (docs/policy.md).
 
-Where the paper is inconsistent this module follows the more specific statement and says so:
-
-- Section 5 says the DiTs have 8 attention heads, table 5 says 12 (DiT-B): ``paper`` uses table 5's 12.
-- Tables 6/7 say 8 diffusion steps, appendix B.2 says DDIM sampling with 10 steps. A DDIM sampler cannot take
-  more steps than the training schedule has timesteps (diffusers raises), so ``num_inference_steps`` defaults to
-  the 8 training timesteps; ``--policy.generator.num_train_timesteps=100
-  --policy.generator.num_inference_steps=10`` gives the other reading.
-- The paper does not give the number of actions executed per predicted chunk; ``n_action_steps = 8`` of the 15
-  predicted actions follows Diffusion Policy's habit of executing about half of the horizon before re-planning.
-- The paper gives no guidance scale beyond "s > 1" for the planner and "optional" CFG for the generator:
-  planner 1.5 (CogACT's default, the code base the paper's DiT heads follow), generator 1.0 (no CFG).
+Where the paper is inconsistent (DiT heads 8 or 12, 8 diffusion steps vs DDIM 10, the executed part of a
+chunk, the guidance scales) the config follows the more specific statement; docs/model.md lists each choice.
 """
 
 from __future__ import annotations
@@ -54,7 +45,7 @@ from lerobot_subgoalvla.policies.subgoalvla.config_components import (
 )
 from lerobot_subgoalvla.policies.subgoalvla.schedule import TwoStageCosineSchedulerConfig
 
-# Batch keys of the data contract: the converter writes them, the env provides cameras and state at evaluation.
+# Batch keys of the data contract: the converter writes them, the env provides cameras and state.
 STATIC_CAMERA_KEY = "observation.images.static"
 GRIPPER_CAMERA_KEY = "observation.images.gripper"
 STATE_HISTORY_KEY = "observation.state_history"
@@ -67,7 +58,7 @@ CONVERTER_COMMAND = "subgoalvla-convert-calvin <CALVIN_DIR> --repo-id <id>"
 PRESETS = ("tiny", "laptop", "small", "paper")
 FEATURE_AGGREGATIONS = ("proprio_xattn", "mean", "max", "attn")
 STAGES = ("stage1", "stage2")
-#: Attributes of SubgoalVLAConfig itself (not of a nested dataclass) that ``PRESET_VALUES[...]["recipe"]`` fills.
+#: ``PRESET_VALUES[...]["recipe"]`` fills attributes of SubgoalVLAConfig itself (not of a nested dataclass).
 RECIPE = "recipe"
 TORCH_DTYPES = ("float32", "bfloat16", "float16")
 
@@ -102,12 +93,14 @@ class SubgoalVLAConfig(PreTrainedConfig):
         use_planner: False is the "w/o SP" ablation: no planner, the generator conditions on the state history
             and the vision-language features only.
         stage: training stage at step 0: ``stage1`` (generator conditioned on ground-truth traces, everything
-            trained) or ``stage2`` (generator conditioned on traces sampled from the planner, backbone frozen).
-            Start a stage II run from a stage I checkpoint with ``--policy.path=<ckpt> --policy.stage=stage2``.
-        stage2_start_step: with ``stage=stage1``, the optimizer step at which the same run switches to stage II
+            trained) or ``stage2`` (generator conditioned on traces sampled from the planner, backbone
+            frozen). Start a stage II run from a stage I checkpoint with ``--policy.path=<ckpt>
+            --policy.stage=stage2``.
+        stage2_start_step: with ``stage=stage1``, the optimizer step at which the same run switches to stage
+        II
             (None: never). The policy counts steps in a saved buffer, so ``--resume=true`` continues in the
-            right stage. With ``stage=stage2`` every step is stage II, so a stage I checkpoint that had a switch
-            step can be continued with ``--policy.stage=stage2`` as it is.
+            right stage. With ``stage=stage2`` every step is stage II, so a stage I checkpoint that had a
+            switch step can be continued with ``--policy.stage=stage2`` as it is.
         optimizer_lr_projector: learning rate of the vision-to-language projector (1e-5, table 8), and of an
             unfrozen vision tower.
         optimizer_lr_llm: learning rate of the LLM (2e-5, table 8).
@@ -118,8 +111,10 @@ class SubgoalVLAConfig(PreTrainedConfig):
         optimizer_weight_decay: AdamW weight decay (0.01, table 8).
         optimizer_grad_clip_norm: gradient-norm clipping threshold (not given in the paper).
         scheduler_warmup_ratio: linear-warmup fraction of each training stage (0.05, table 8).
-        scheduler_decay_lr: the heads' learning rate at the end of each stage's cosine (3e-6, section 5); the other
-            groups decay by the same factor. A stage I -> II switch restarts warmup and cosine (``schedule.py``).
+        scheduler_decay_lr: the heads' learning rate at the end of each stage's cosine (3e-6, section 5); the
+        other
+            groups decay by the same factor. A stage I -> II switch restarts warmup and cosine
+            (``schedule.py``).
         dtype: training precision read by ``lerobot-train``: ``bfloat16`` = accelerate bf16 mixed precision
             (float32 weights, bf16 autocast), ``float32`` = full precision.
         state_angle_dims: indices of the wrapping TCP Euler angles in ``observation.state`` (CALVIN: 3, 4, 5).
@@ -127,8 +122,8 @@ class SubgoalVLAConfig(PreTrainedConfig):
             down: roll pi); the model sees ``wrap(angle - home)``, continuous wherever the arm goes.
         state_angle_scale: radians per normalised unit of those angles.
         normalization_mapping: normalisation per feature type for LeRobot's normaliser. ``STATE`` must stay
-            ``IDENTITY``: the proprioception (state, history, trace) is normalised by the policy's own step with
-            the state's statistics and continuous angles (``proprio_normalization.py``).
+            ``IDENTITY``: the proprioception (state, history, trace) is normalised by the policy's own step
+            with the state's statistics and continuous angles (``proprio_normalization.py``).
     """
 
     preset: str = "tiny"
@@ -220,7 +215,8 @@ class SubgoalVLAConfig(PreTrainedConfig):
         require_positive("backbone.max_instruction_tokens", self.backbone.max_instruction_tokens)
         if self.n_action_steps > self.chunk_size:
             raise ValueError(
-                f"--policy.n_action_steps={self.n_action_steps} must be <= --policy.chunk_size={self.chunk_size}"
+                f"--policy.n_action_steps={self.n_action_steps} must be <= "
+                f"--policy.chunk_size={self.chunk_size}"
             )
         if self.stage2_start_step is not None and self.stage2_start_step < 0:
             raise ValueError(f"--policy.stage2_start_step must be >= 0, got {self.stage2_start_step}")
@@ -297,7 +293,8 @@ class SubgoalVLAConfig(PreTrainedConfig):
             raise ValueError(self.missing_feature_message(ACTION_KEY))
 
     def validate_dataset_features(self, features: dict[str, dict[str, Any]]) -> None:
-        """Check a training dataset's features (``LeRobotDatasetMetadata.features``) against the data contract.
+        """Check a training dataset's features (``LeRobotDatasetMetadata.features``) against the data
+        contract.
 
         Raises:
             ValueError: one line naming the missing/mis-shaped feature and the converter that writes it.
@@ -321,7 +318,8 @@ class SubgoalVLAConfig(PreTrainedConfig):
         )
 
     def set_dataset_feature_metadata(self, features: dict[str, dict[str, Any]]) -> None:
-        """LeRobot hook: ``make_policy`` calls it with the training dataset's features before building the policy."""
+        """LeRobot hook: ``make_policy`` calls it with the training dataset's features before building the
+        policy."""
         self.validate_dataset_features(features)
 
     def _check_sequence_shape(
@@ -339,16 +337,21 @@ class SubgoalVLAConfig(PreTrainedConfig):
             )
         if key == SUBGOAL_TRACE_KEY and shape[0] < self.subgoal_trace_len:
             raise ValueError(
-                f"dataset feature {key!r} has {shape[0]} steps but --policy.subgoal_trace_len={self.subgoal_trace_len}; "
+                f"dataset feature {key!r} has {shape[0]} steps but "
+                f"--policy.subgoal_trace_len={self.subgoal_trace_len}; "
                 f"lower the flag or convert with a longer trace"
             )
 
     @staticmethod
     def missing_feature_message(key: str) -> str:
         """The one-line error for a dataset/env that lacks ``key``."""
-        return f"SubgoalVLA needs the feature {key!r}, which the dataset/env does not provide; create the dataset with `{CONVERTER_COMMAND}`"
+        return (
+            f"SubgoalVLA needs the feature {key!r}, which the dataset/env does not provide; "
+            f"create the dataset with `{CONVERTER_COMMAND}`"
+        )
 
-    # LeRobot contract -----------------------------------------------------------------------------------------
+    # LeRobot contract
+    # -----------------------------------------------------------------------------------------
     @property
     def observation_delta_indices(self) -> None:
         """No observation deltas: the history is precomputed (a delta would decode every camera h times)."""
@@ -364,7 +367,8 @@ class SubgoalVLAConfig(PreTrainedConfig):
         return None
 
     def get_optimizer_preset(self) -> AdamWConfig:
-        """AdamW; per-group learning rates come from ``SubgoalVLAPolicy.get_optim_params`` (plugin guide 2.7)."""
+        """AdamW; per-group learning rates come from ``SubgoalVLAPolicy.get_optim_params`` (plugin guide
+        2.7)."""
         return AdamWConfig(
             lr=self.optimizer_lr_heads,
             betas=self.optimizer_betas,

@@ -1,67 +1,63 @@
 """Diffusion objective and sampler shared by the planner and the generator (paper eqs. 3-4, appendix B).
 
-The denoiser is any network ``f(x_noisy, timesteps, cond, cond_mask, drop_cond) -> eps_hat`` (``dit.DiT``); this
-module owns everything about noise: the schedule, the training loss and DDIM sampling with classifier-free guidance
-(style guide convention 4). The schedules are diffusers' own: ``DDPMScheduler`` for the forward process
-``x_i = sqrt(abar_i) x_0 + sqrt(1 - abar_i) eps`` (eq. 3/4 notation) and ``DDIMScheduler`` for sampling, both with
-the squared-cosine alpha-bar schedule (``beta_schedule="squaredcos_cap_v2"``, tables 6-7).
+The denoiser is any network ``f(x_noisy, timesteps, cond, cond_mask, drop_cond) -> eps_hat`` (``dit.DiT``);
+this
+module owns everything about noise: the schedule, the training loss and DDIM sampling with classifier-free
+guidance (style guide convention 4). The schedules are diffusers' own: ``DDPMScheduler`` for the forward
+process ``x_i = sqrt(abar_i) x_0 + sqrt(1 - abar_i) eps`` (eq. 3/4 notation) and ``DDIMScheduler`` for
+sampling, both with the squared-cosine alpha-bar schedule (``beta_schedule="squaredcos_cap_v2"``, tables 6-7).
 
 Choices where the paper is loose (also in docs/model.md):
-- Loss (appendix B.1): "timestep-weighted MSE between predicted and true noise (weighted by 1 - t/T), together with a
-  small l2 regularisation (lambda = 0.001) on predictions". We use ``mean_i[(1 - t_i/T) * mse_i] + lambda *
-  mean(eps_hat^2)`` with ``t_i`` in ``[0, T-1]`` (so the noisiest step keeps weight ``1/T`` > 0).
-- "Repeated diffusion steps 8" (table 8): each sample is repeated ``R`` times with independent timesteps and noise,
-  so one expensive backbone pass feeds ``R`` cheap denoiser passes.
+- Loss (appendix B.1): "timestep-weighted MSE between predicted and true noise (weighted by 1 - t/T), together
+  with a small l2 regularisation (lambda = 0.001) on predictions". We use ``mean_i[(1 - t_i/T) * mse_i] +
+  lambda * mean(eps_hat^2)`` with ``t_i`` in ``[0, T-1]`` (so the noisiest step keeps weight ``1/T`` > 0).
+- "Repeated diffusion steps 8" (table 8): each sample is repeated ``R`` times with independent timesteps and
+  noise, so one expensive backbone pass feeds ``R`` cheap denoiser passes.
 - Label dropout p = 0.1 is drawn per repeated sample; the DiT swaps the condition for its learned null token.
-- DDIM with 10 steps but only 8 training timesteps (appendix B.2 vs tables 6-7): DDIM can only visit timesteps that
-  exist, so ``num_inference_steps > num_train_timesteps`` is an error, here as in the config (which rejects it
-  first, with the flag names). The default walks every one of the 8 training timesteps once (docs/model.md has the
-  measurement behind T = 8; T = 100 with DDIM 10 is the other reading, one flag each).
-- Clipping: the 8-step squared-cosine schedule ends at alpha_bar_7 = 3.7e-5, so DDIM's first estimate of the clean
-  sample, ``(x - sqrt(1 - abar) eps_hat) / sqrt(abar)``, multiplies the noise-prediction error by 163 and the walk
-  diverges (a tiny model's samples reach 1e4). The sampler therefore clips that estimate to
-  ``[-clip_sample_range, clip_sample_range]`` (diffusers' ``clip_sample``), the bound of the normalised targets
-  (1 for min/max-normalised actions, as LeRobot's Diffusion Policy does). ``None`` disables clipping.
+- DDIM with 10 steps but only 8 training timesteps (appendix B.2 vs tables 6-7): DDIM can only visit timesteps
+  that exist, so ``num_inference_steps > num_train_timesteps`` is an error, here as in the config (which
+  rejects it first, with the flag names). The default walks every one of the 8 training timesteps once
+  (docs/model.md has the measurement behind T = 8; T = 100 with DDIM 10 is the other reading, one flag each).
+- Clipping: the 8-step squared-cosine schedule ends at alpha_bar_7 = 3.7e-5, so DDIM's first estimate of the
+  clean sample, ``(x - sqrt(1 - abar) eps_hat) / sqrt(abar)``, multiplies the noise-prediction error by 163
+  and the walk diverges (a tiny model's samples reach 1e4). The sampler therefore clips that estimate to
+  ``[-clip_sample_range, clip_sample_range]`` (diffusers' ``clip_sample``), the bound of the normalised
+  targets (1 for min/max-normalised actions, as LeRobot's Diffusion Policy does). ``None`` disables clipping.
 
-Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``R`` repeats, ``T`` tokens (trace steps or action steps), ``X`` token features,
-``Tc`` conditioning tokens, ``Dc`` conditioning width.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``R`` repeats, ``T`` tokens (trace steps or
+action steps), ``X`` token features, ``Tc`` conditioning tokens, ``Dc`` conditioning width.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+from collections.abc import Callable
 
 import torch
 from diffusers import DDIMScheduler, DDPMScheduler
 from einops import repeat
 from torch import Tensor
 
-
-class Denoiser(Protocol):
-    """What the objective needs from a network (``dit.DiT`` satisfies it)."""
-
-    def __call__(
-        self,
-        x_noisy: Tensor,
-        timesteps: Tensor,
-        cond: Tensor,
-        cond_mask: Tensor | None = None,
-        drop_cond: Tensor | None = None,
-    ) -> Tensor: ...
+#: What the objective needs from a network (``dit.DiT`` is one):
+#: ``denoiser(x_noisy (B, T, X), timesteps (B,), cond (B, Tc, Dc), cond_mask (B, Tc) | None,
+#: drop_cond (B,) | None) -> eps_hat (B, T, X)``.
+Denoiser = Callable[[Tensor, Tensor, Tensor, Tensor | None, Tensor | None], Tensor]
 
 
 class DiffusionObjective:
     """Noise schedule, training loss and guided DDIM sampler for one diffusion head.
 
     Args:
-        num_train_timesteps: T, diffusion steps of the forward process (``DiTHeadConfig.num_train_timesteps``).
+        num_train_timesteps: T, diffusion steps of the forward process
+        (``DiTHeadConfig.num_train_timesteps``).
         num_inference_steps: DDIM steps at inference, at most T (``DiTHeadConfig.num_inference_steps``).
-        beta_schedule: diffusers beta schedule name; "squaredcos_cap_v2" is the squared-cosine alpha-bar schedule.
+        beta_schedule: diffusers beta schedule name; "squaredcos_cap_v2" is the squared-cosine alpha-bar
+        schedule.
         guidance_scale: classifier-free guidance scale s (1.0 = purely conditional, no extra forward pass).
         repeats: R, repeated diffusion steps per sample in training (8 in table 8).
         l2_weight: lambda of the l2 penalty on predictions (0.001 in appendix B.1).
         cond_dropout_prob: label dropout probability for classifier-free guidance (0.1 in appendix B.1).
-        clip_sample_range: DDIM clips its clean-sample estimate to +-this (normalised units); None = no clipping.
+        clip_sample_range: DDIM clips its clean-sample estimate to +-this (normalised units); None = no
+        clipping.
     """
 
     def __init__(
@@ -166,7 +162,8 @@ class DiffusionObjective:
         """Classifier-free guidance ``eps_u + s (eps_c - eps_u)`` from ONE batched forward of both branches.
 
         Args:
-            x: (B, T, X) current sample; timestep: () or (B,) step; cond (B, Tc, Dc); cond_mask (B, Tc) or None.
+            x: (B, T, X) current sample; timestep: () or (B,) step; cond (B, Tc, Dc); cond_mask (B, Tc) or
+            None.
 
         Returns:
             (B, T, X) guided noise prediction.

@@ -1,28 +1,32 @@
-"""The diffusion transformer (DiT) used for BOTH SubgoalVLA heads: the subgoal planner and the action generator.
+"""The diffusion transformer (DiT) used for BOTH SubgoalVLA heads: the subgoal planner and the action
+generator.
 
 Paper appendix B.1/B.2: "The DiT backbone embeds subgoal tokens, timestep features (via an MLP applied to
-sinusoidal embeddings), and conditioning inputs, with label dropout (p = 0.1) to enable classifier-free guidance.
-Latent variable z is concatenated before the subgoal tokens, and sinusoidal positional embeddings with a learned
-global scale are applied. Each block employs pre-LayerNorm self-attention and MLP layers modulated through AdaLN
-gates, computed from the timestep embedding combined with pooled z." B.2: "The DiT backbone and conditioning layers
-(positional/AdaLN) are identical to those of the subgoal trace planner" - so one class, instantiated twice.
+sinusoidal embeddings), and conditioning inputs, with label dropout (p = 0.1) to enable classifier-free
+guidance. Latent variable z is concatenated before the subgoal tokens, and sinusoidal positional embeddings
+with a learned global scale are applied. Each block employs pre-LayerNorm self-attention and MLP layers
+modulated through AdaLN gates, computed from the timestep embedding combined with pooled z." B.2: "The DiT
+backbone and conditioning layers (positional/AdaLN) are identical to those of the subgoal trace planner" - so
+one class, instantiated twice.
 
-Interpretation of ``z`` (the paper never defines it further): ``z`` is the conditioning feature sequence produced by
-the proprioceptive cross-attention (``f^{c,g}`` for the planner, ``f^{c,a}`` for the generator), linearly projected
-to the DiT width. Those projected tokens are (i) concatenated before the noisy input tokens, so self-attention can
-read them token by token, and (ii) mean-pooled over their valid positions and added to the timestep embedding to
-form the adaLN conditioning vector ``c``. The sinusoidal positions (times a learned global scale) index the
-input tokens 0..T-1; ``z`` tokens carry their order from the cross-attention's per-step query embeddings. Indexing
-the input tokens from 0 rather than from Tc keeps masked (padded) conditioning tokens from shifting positions. Label dropout replaces all ``z`` tokens of a sample with one learned null
-token, which is what classifier-free guidance evaluates as the "unconditional" branch.
+Interpretation of ``z`` (the paper never defines it further): ``z`` is the conditioning feature sequence
+produced by the proprioceptive cross-attention (``f^{c,g}`` for the planner, ``f^{c,a}`` for the generator),
+linearly projected to the DiT width. Those projected tokens are (i) concatenated before the noisy input
+tokens, so self-attention can read them token by token, and (ii) mean-pooled over their valid positions and
+added to the timestep embedding to form the adaLN conditioning vector ``c``. The sinusoidal positions (times a
+learned global scale) index the input tokens 0..T-1; ``z`` tokens carry their order from the cross-attention's
+per-step query embeddings. Indexing the input tokens from 0 rather than from Tc keeps masked (padded)
+conditioning tokens from shifting positions. Label dropout replaces all ``z`` tokens of a sample with one
+learned null token, which is what classifier-free guidance evaluates as the "unconditional" branch.
 
 The network is a pure denoiser ``f(x_noisy, t, cond) -> eps_hat``; schedules, losses and sampling live in
-``diffusion.py`` (style guide convention 4). Idioms follow facebookresearch/DiT ``models.py``: a ``modulate`` helper,
-``TimestepEmbedder``, adaLN-zero blocks, an adaLN ``FinalLayer`` and ``initialize_weights`` zeroing the modulation
-so that every block starts as the identity and the output starts at exactly zero.
+``diffusion.py`` (style guide convention 4). Idioms follow facebookresearch/DiT ``models.py``: a ``modulate``
+helper, ``TimestepEmbedder``, adaLN-zero blocks, an adaLN ``FinalLayer`` and ``initialize_weights`` zeroing
+the modulation so that every block starts as the identity and the output starts at exactly zero.
 
-Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``T`` input tokens (trace steps M or action steps N), ``X`` input feature size (p or
-A), ``Tc`` conditioning tokens, ``Dc`` conditioning width, ``D`` DiT width.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``T`` input tokens (trace steps M or action
+steps N), ``X`` input feature size (p or A), ``Tc`` conditioning tokens, ``Dc`` conditioning width, ``D`` DiT
+width.
 """
 
 from __future__ import annotations
@@ -116,7 +120,8 @@ class FinalLayer(nn.Module):
 
 
 class DiT(nn.Module):
-    """Conditional DiT denoiser shared by the planner (x = trace G, X = p) and the generator (x = actions, X = A).
+    """Conditional DiT denoiser shared by the planner (x = trace G, X = p) and the generator (x = actions, X =
+    A).
 
     Args:
         input_dim: X, feature size of each noisy token (proprio dim p for the planner, action dim A).
@@ -156,8 +161,9 @@ class DiT(nn.Module):
     def initialize_weights(self) -> None:
         """DiT initialisation: Xavier linears, N(0, 0.02) embedders, adaLN-zero.
 
-        Zeroing every adaLN modulation makes each block the identity at initialisation (gates = 0), and zeroing the
-        final layer makes the initial noise prediction exactly 0, which is what "adaLN-zero" refers to.
+        Zeroing every adaLN modulation makes each block the identity at initialisation (gates = 0), and
+        zeroing the final layer makes the initial noise prediction exactly 0, which is what "adaLN-zero"
+        refers to.
         """
 
         def _basic_init(module: nn.Module) -> None:

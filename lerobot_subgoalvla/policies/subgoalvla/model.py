@@ -8,15 +8,15 @@
     [S_t, G] --generator aggregator (PCA)--> f^{c,a}                                  (B, h+M, E)
     generator DiT phi + DDIM --> action chunk A_hat                                   (B, N, A)
 
-The backbone runs once per chunk (``encode``); both heads read the same H[k]. Two-stage training (section 4.3):
-stage I conditions the generator on the ground-truth trace G (everything trains); stage II conditions it on a
-trace the planner samples without gradient, and the backbone runs under ``no_grad`` (frozen) while both heads keep
-training. Ablations are configuration: ``feature_aggregation`` (table 4) swaps the aggregator, ``use_planner=False``
-("w/o SP", table 3) drops the planner so the generator queries come from S_t alone, ``subgoal_trace_len=1`` ("w/o
-ST") keeps only the first trace step.
+The backbone runs once per chunk (``encode``); both heads read the same H[k]. Two-stage training (section
+4.3): stage I conditions the generator on the ground-truth trace G (everything trains); stage II conditions it
+on a trace the planner samples without gradient, and the backbone runs under ``no_grad`` (frozen) while both
+heads keep training. Ablations are configuration: ``feature_aggregation`` (table 4) swaps the aggregator,
+``use_planner=False`` ("w/o SP", table 3) drops the planner so the generator queries come from S_t alone,
+``subgoal_trace_len=1`` ("w/o ST") keeps only the first trace step.
 
-The batch is already normalised by the processor (state, history and trace share the state statistics; actions use
-their own). Cameras arrive in [0, 1] and are resized/normalised here for the vision tower (on the device).
+The batch is already normalised by the processor (state, history and trace share the state statistics; actions
+use their own). Cameras arrive in [0, 1] and are resized/normalised here for the vision tower (on the device).
 
 Dimension legend: ``B`` batch, ``h`` history steps, ``M`` trace steps, ``p`` proprio dim, ``N`` chunk size,
 ``A`` action dim, ``S`` VLM tokens, ``E`` VLM hidden size (= cross-attention width); the package's legend
@@ -53,7 +53,8 @@ ACTION_IS_PAD_KEY = "action_is_pad"
 
 
 def _objective(head: DiTHeadConfig, target_normalization: NormalizationMode) -> DiffusionObjective:
-    """The head's diffusion objective; an unset clip range follows the target's normalisation (1 for MIN_MAX)."""
+    """The head's diffusion objective; an unset clip range follows the target's normalisation (1 for
+    MIN_MAX)."""
     clip = head.clip_sample_range
     if clip is None:
         clip = 1.0 if target_normalization == NormalizationMode.MIN_MAX else 4.0
@@ -97,7 +98,8 @@ class SubgoalVLAModel(nn.Module):
 
     Args:
         config: the policy config; ``input_features[observation.state]`` gives p, ``action_feature`` gives A.
-        backbone: an already built backbone to use instead of building ``config.backbone`` (e.g. an architecture
+        backbone: an already built backbone to use instead of building ``config.backbone`` (e.g. an
+        architecture
             instantiated on the meta device by the benchmark); None builds it from the config.
     """
 
@@ -139,17 +141,20 @@ class SubgoalVLAModel(nn.Module):
         )
 
     def head_parameters(self) -> list[nn.Parameter]:
-        """Aggregators and DiT heads (learning rate 1e-4, table 8); the backbone groups live on ``backbone``."""
+        """Aggregators and DiT heads (learning rate 1e-4, table 8); the backbone groups live on
+        ``backbone``."""
         heads = [self.planner_aggregator, self.planner, self.generator_aggregator, self.generator]
         return [p for module in heads if module is not None for p in module.parameters()]
 
-    # ----------------------------------------------------------------------------------------------------------
+    # --------------------------------------------------------------------------------------------------------
     def encode(self, batch: dict[str, Tensor]) -> tuple[Tensor, Tensor]:
         """Run the backbone once: layer-k states of image + instruction tokens.
 
         Args:
-            batch: ``observation.images.static`` (B, 3, H, W) and ``observation.images.gripper`` (B, 3, h, w) in
-                [0, 1]; ``observation.language.tokens`` (B, S); ``observation.language.attention_mask`` (B, S).
+            batch: ``observation.images.static`` (B, 3, H, W) and ``observation.images.gripper`` (B, 3, h, w)
+            in
+                [0, 1]; ``observation.language.tokens`` (B, S); ``observation.language.attention_mask`` (B,
+                S).
 
         Returns:
             hidden (B, S, E) float32 and mask (B, S) bool (True = valid).
@@ -168,14 +173,17 @@ class SubgoalVLAModel(nn.Module):
         """Diffusion losses of planner (eq. 3) and generator (eq. 4), summed as in eq. 1.
 
         Args:
-            batch: the ``encode`` keys plus ``observation.state_history`` (B, h, p), ``observation.subgoal_trace``
+            batch: the ``encode`` keys plus ``observation.state_history`` (B, h, p),
+            ``observation.subgoal_trace``
                 (B, >=M, p), ``action`` (B, N, A) and optionally ``action_is_pad`` (B, N) bool.
-            stage: "stage1" (generator conditioned on the ground-truth trace) or "stage2" (on a planner sample,
+            stage: "stage1" (generator conditioned on the ground-truth trace) or "stage2" (on a planner
+            sample,
                 backbone frozen).
             generator: RNG for timesteps, noise, label dropout and the stage-II trace sample.
 
         Returns:
-            ``planner_loss``, ``generator_loss`` and ``loss`` (their sum); planner_loss is 0 without a planner.
+            ``planner_loss``, ``generator_loss`` and ``loss`` (their sum); planner_loss is 0 without a
+            planner.
         """
         if stage not in ("stage1", "stage2"):
             raise ValueError(f"stage must be 'stage1' or 'stage2', got {stage!r}")
@@ -291,7 +299,8 @@ class SubgoalVLAModel(nn.Module):
             generator: RNG for the initial noise of both samplers (None = global RNG).
 
         Returns:
-            actions (B, N, A) and the planned trace (B, M, p) in the normalised space (None without a planner).
+            actions (B, N, A) and the planned trace (B, M, p) in the normalised space (None without a
+            planner).
         """
         hidden, mask = self.encode(batch)
         history = batch[STATE_HISTORY_KEY]

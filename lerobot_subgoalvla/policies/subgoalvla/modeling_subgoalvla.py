@@ -2,26 +2,27 @@
 
 The policy is thin: the computation lives in ``model.py``; this module does the LeRobot plumbing.
 
-- Training: ``forward`` picks the stage (section 4.3) from the config and the number of optimizer steps done so far.
-  LeRobot calls ``update()`` after every optimizer step; the count lives in a saved buffer, so a resumed run or a
-  reloaded checkpoint continues in the right stage, and one ``lerobot-train`` run can switch from stage I to
-  stage II at ``stage2_start_step``.
-- Optimizer groups (appendix C, table 8): heads 1e-4, projector 1e-5, LLM 2e-5; the frozen vision tower is in no
-  group. LeRobot only uses these groups through the policy's optimizer preset (plugin guide 2.7). The heads come
-  first because LeRobot logs ``param_groups[0]``'s learning rate, which is then the scheduler's peak.
-- Inference (``select_action``): the state history the model needs is built online from the normalised states with
-  :class:`StateHistoryBuffer` (the same clamping as the dataset's ``observation.state_history``). The backbone and
-  both samplers run once per chunk; ``n_action_steps`` actions are queued. CALVIN resets the model at every
-  subtask, but ``lerobot-eval`` calls ``reset()`` once per rollout, so a change of ``batch["task"]`` (the env
-  switches the instruction at each subtask) flushes the queue and restarts the history of the envs whose
-  instruction changed (plugin guide pitfall 15).
-- Visualisation: the trace planned with the latest chunk is kept in ``last_subgoal_trace`` (B, M, p), normalised
-  (None without a planner or before the first chunk; cleared by ``reset()``), so a rollout can draw it as ghost
-  robots (paper figure 7, ``subgoalvla-render-traces``) without a second model pass.
-- Hub: loading or pushing a Hub id while ``HF_HUB_OFFLINE=1`` fails with one line naming the local alternative.
+- Training: ``forward`` picks the stage (section 4.3) from the config and the number of optimizer steps done
+  so far. LeRobot calls ``update()`` after every optimizer step; the count lives in a saved buffer, so a
+  resumed run or a reloaded checkpoint continues in the right stage, and one ``lerobot-train`` run can switch
+  from stage I to stage II at ``stage2_start_step``.
+- Optimizer groups (appendix C, table 8): heads 1e-4, projector 1e-5, LLM 2e-5; the frozen vision tower is in
+  no group. LeRobot only uses these groups through the policy's optimizer preset (plugin guide 2.7). The heads
+  come first because LeRobot logs ``param_groups[0]``'s learning rate, which is then the scheduler's peak.
+- Inference (``select_action``): the state history the model needs is built online from the normalised states
+  with :class:`StateHistoryBuffer` (the same clamping as the dataset's ``observation.state_history``). The
+  backbone and both samplers run once per chunk; ``n_action_steps`` actions are queued. CALVIN resets the
+  model at every subtask, but ``lerobot-eval`` calls ``reset()`` once per rollout, so a change of
+  ``batch["task"]`` (the env switches the instruction at each subtask) flushes the queue and restarts the
+  history of the envs whose instruction changed (plugin guide pitfall 15).
+- Visualisation: the trace planned with the latest chunk is kept in ``last_subgoal_trace`` (B, M, p),
+  normalised (None without a planner or before the first chunk; cleared by ``reset()``), so a rollout can draw
+  it as ghost robots (paper figure 7, ``subgoalvla-render-traces``) without a second model pass.
+- Hub: loading or pushing a Hub id while ``HF_HUB_OFFLINE=1`` fails with one line naming the local
+  alternative.
 
-Dimension legend (the package's, ``__init__.py``): ``B`` batch / parallel envs, ``N`` chunk size, ``A`` action dim,
-``h`` history steps, ``p`` proprio dim.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch / parallel envs, ``N`` chunk size, ``A`` action
+dim, ``h`` history steps, ``p`` proprio dim.
 """
 
 from __future__ import annotations
@@ -64,7 +65,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         dataset_meta: the training dataset's metadata when LeRobot builds the policy from a dataset; its
             features are checked against the data contract (trace and history are needed for training only),
             and a run that would end by pushing to the Hub fails now when the Hub is offline.
-        **kwargs: the rest of LeRobot's factory arguments (``dataset_stats``): normalisation is the processor's
+        **kwargs: the rest of LeRobot's factory arguments (``dataset_stats``): normalisation is the
+        processor's
             job, so the policy does not use them.
     """
 
@@ -109,8 +111,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
 
         Args:
             batch: preprocessed batch: cameras (B, 3, H, W) in [0, 1], language tokens/mask (B, L), normalised
-                ``observation.state_history`` (B, h, p) and ``observation.subgoal_trace`` (B, M', p), ``action``
-                (B, N, A) and ``action_is_pad`` (B, N).
+                ``observation.state_history`` (B, h, p) and ``observation.subgoal_trace`` (B, M', p),
+                ``action`` (B, N, A) and ``action_is_pad`` (B, N).
 
         Returns:
             The loss and numbers to log: ``planner_loss``, ``generator_loss``, ``stage`` (1 or 2).
@@ -135,7 +137,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         """
         backbone = self.model.backbone
         cfg = self.config
-        # An unfrozen vision tower (--policy.backbone.freeze_vision_tower=false) joins the most conservative group.
+        # An unfrozen vision tower (--policy.backbone.freeze_vision_tower=false)
+        # joins the most conservative group.
         projector = backbone.projector_parameters()
         if not cfg.backbone.freeze_vision_tower:
             projector = backbone.vision_parameters() + projector
@@ -182,9 +185,9 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
     def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs: Any) -> Tensor:
         """A normalised action chunk (B, N, A) for the current observation.
 
-        Uses ``batch["observation.state_history"]`` when present (dataset batches, ``select_action``); otherwise
-        pushes ``observation.state`` into the policy's history buffer and uses that. The planned trace is kept in
-        ``last_subgoal_trace`` (module docstring).
+        Uses ``batch["observation.state_history"]`` when present (dataset batches, ``select_action``);
+        otherwise pushes ``observation.state`` into the policy's history buffer and uses that. The planned
+        trace is kept in ``last_subgoal_trace`` (module docstring).
         """
         if STATE_HISTORY_KEY not in batch:
             batch = {**batch, STATE_HISTORY_KEY: self._history.push(batch[STATE_KEY])}
@@ -194,7 +197,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], **kwargs: Any) -> Tensor:
-        """The next action (B, A): pops the queue, predicting a new chunk (one backbone pass) when it is empty."""
+        """The next action (B, A): pops the queue, predicting a new chunk (one backbone pass) when it is
+        empty."""
         state = batch[STATE_KEY]  # (B, p), normalised by the preprocessor
         self._on_new_step(batch, state.shape[0])
         history = self._history.push(state)  # (B, h, p), every step, so the history has no gaps
@@ -210,7 +214,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         if not Path(pretrained_name_or_path).is_dir():
             _require_online(
                 f"loading {str(pretrained_name_or_path)!r} (not a local directory)",
-                "pass a local checkpoint directory such as outputs/train/<run>/checkpoints/last/pretrained_model",
+                "pass a local checkpoint directory such as "
+                "outputs/train/<run>/checkpoints/last/pretrained_model",
             )
         return super().from_pretrained(pretrained_name_or_path, **kwargs)
 
@@ -225,8 +230,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
     ) -> str | None:
         """Save config + weights; with ``card_kwargs`` (e.g. ``{"dataset_repo_id": ...}``) also a model card.
 
-        LeRobot's ``generate_model_card`` validates the card with the Hub, so the card needs a connection; it is
-        always written when pushing (``push_to_hub`` saves through this method).
+        LeRobot's ``generate_model_card`` validates the card with the Hub, so the card needs a connection; it
+        is always written when pushing (``push_to_hub`` saves through this method).
 
         ``push_to_hub=True`` then uploads the directory (``repo_id`` defaults to its name).
         """

@@ -7,17 +7,18 @@ Pre-processor (``policy_preprocessor``)::
 
 Post-processor (``policy_postprocessor``): ``unnormalizer_processor -> device_processor (cpu)``.
 
-Proprioception (``observation.state`` and its sequences ``observation.state_history`` / ``observation.subgoal_trace``)
-is normalised by our own step, with the state's statistics and the wrapping TCP angles as continuous offsets
-(``proprio_normalization.py``); LeRobot's ``normalizer_processor`` handles the action and leaves ``STATE``
-features alone (the config maps ``STATE`` to ``IDENTITY``).
+Proprioception (``observation.state`` and its sequences ``observation.state_history`` /
+``observation.subgoal_trace``) is normalised by our own step, with the state's statistics and the wrapping TCP
+angles as continuous offsets (``proprio_normalization.py``); LeRobot's ``normalizer_processor`` handles the
+action and leaves ``STATE`` features alone (the config maps ``STATE`` to ``IDENTITY``).
 
 Images are left in [0, 1] (``VISUAL: IDENTITY``); the model resizes and normalises them for its vision tower.
-The instruction (``task``) is tokenised here with the backbone's tokenizer, LLaVA style (image placeholders first);
-the step stores only the backbone name / tiny dimensions, so a saved pipeline rebuilds it offline for the tiny model.
+The instruction (``task``) is tokenised here with the backbone's tokenizer, LLaVA style (image placeholders
+first); the step stores only the backbone name / tiny dimensions, so a saved pipeline rebuilds it offline for
+the tiny model.
 
-Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``p`` proprio dim (15), ``h`` history steps, ``M`` trace
-steps, ``S`` VLM tokens.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``p`` proprio dim (15), ``h`` history steps,
+``M`` trace steps, ``S`` VLM tokens.
 """
 
 from __future__ import annotations
@@ -55,7 +56,8 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
     Args:
         name_or_path: the backbone checkpoint (its tokenizer and image-token facts); None = the tiny backbone.
         max_length: instruction tokens kept (``BackboneConfig.max_instruction_tokens``).
-        tiny_dims: ``TinyLlavaDims`` fields of the tiny backbone (None for a pretrained one); they fix the number
+        tiny_dims: ``TinyLlavaDims`` fields of the tiny backbone (None for a pretrained one); they fix the
+        number
             of image placeholders.
         task_key: complementary-data key holding the instruction(s).
     """
@@ -146,7 +148,8 @@ def make_subgoalvla_pre_post_processors(
         config: the policy config (features, normalisation mapping, backbone).
         dataset_stats: the dataset's statistics; ``observation.state``'s normalise state, history and trace
             (``ProprioNormalizerProcessorStep``), the history/trace columns' own statistics are never used.
-        dataset_meta: the training dataset's metadata, when LeRobot passes it: its features are checked against
+        dataset_meta: the training dataset's metadata, when LeRobot passes it: its features are checked
+        against
             the data contract (one-line error naming the missing feature and the converter).
 
     Returns:

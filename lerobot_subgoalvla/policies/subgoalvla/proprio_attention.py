@@ -1,8 +1,9 @@
 """Proprioceptive cross-attention (PCA, paper eq. 2) and the table-4 feature aggregation ablations.
 
-PCA lets the robot's proprioception choose which vision-language tokens matter (section 4.1): queries come from a
-Linear projection of the state history S_t (planner) or of ``[S_t, G]`` (generator); keys/values are the layer-k
-hidden states H[k] of the VLM. Eq. 2 with the pre-normalisation and dropout the paper omits "for clarity":
+PCA lets the robot's proprioception choose which vision-language tokens matter (section 4.1): queries come
+from a Linear projection of the state history S_t (planner) or of ``[S_t, G]`` (generator); keys/values are
+the layer-k hidden states H[k] of the VLM. Eq. 2 with the pre-normalisation and dropout the paper omits "for
+clarity":
 
     f = Dropout(MHA(LN_q(Q), LN_kv(H), LN_kv(H))) + Q
     f = Dropout(MLP(LN(f))) + f
@@ -12,27 +13,28 @@ The final ``LN_out`` is ours too: with pre-normalisation the residual stream is 
 takes these features as conditioning tokens next to its own normalised inputs, so they leave at unit scale
 (as a pre-LN transformer encoder ends with a LayerNorm).
 
-Vocabulary (style guide convention 6): ``hidden_states`` are the query tokens, ``encoder_hidden_states`` the VLM
-tokens and ``encoder_attention_mask`` their padding mask (True = valid), which reaches the attention op as
-``key_padding_mask`` so padded VLM tokens never influence the output. No self-attention between queries: each block
-is cross-attention then MLP (the paper's figure 4 shows only cross-attention).
+Vocabulary (style guide convention 6): ``hidden_states`` are the query tokens, ``encoder_hidden_states`` the
+VLM tokens and ``encoder_attention_mask`` their padding mask (True = valid), which reaches the attention op as
+``key_padding_mask`` so padded VLM tokens never influence the output. No self-attention between queries: each
+block is cross-attention then MLP (the paper's figure 4 shows only cross-attention).
 
 Ablations (paper table 4, appendix D.1) share one interface, ``aggregator(proprio, H, mask) -> (features,
-features_mask | None)`` (None = all features valid), so the model swaps them by name (``feature_aggregation``):
+features_mask | None)`` (None = all features valid), so the model swaps them by name
+(``feature_aggregation``):
 
 - ``mean``: the k tokens most similar (dot product) to the masked mean token;
 - ``max``: the k tokens with the largest L2 norm;
 - ``attn``: scores ``a_i = alpha * H_i . q`` with a learned query q and scale alpha; top-k by score, and the
-  selected tokens are re-weighted by ``k * softmax(a_topk)`` so q and alpha receive gradients (top-k alone is not
-  differentiable; with equal scores the weights are 1).
+  selected tokens are re-weighted by ``k * softmax(a_topk)`` so q and alpha receive gradients (top-k alone is
+  not differentiable; with equal scores the weights are 1).
 
 Pooling removes the proprioceptive conditioning of the feature *selection*, which is what table 4 ablates; the
-proprioceptive tokens themselves (Linear(S_t) or Linear([S_t, G])) are still handed to the DiT next to the selected
-tokens, so the ablated heads see the same information except for the state-aware selection. Selected tokens pass
-through LayerNorm + Linear to the feature width (mid-layer LLM states have large, uneven norms).
+proprioceptive tokens themselves (Linear(S_t) or Linear([S_t, G])) are still handed to the DiT next to the
+selected tokens, so the ablated heads see the same information except for the state-aware selection. Selected
+tokens pass through LayerNorm + Linear to the feature width (mid-layer LLM states have large, uneven norms).
 
-Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``Q`` query tokens (h or h+M), ``p`` proprio dim,
-``S`` VLM tokens, ``E`` VLM width, ``D`` feature width, ``K`` selected tokens.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``Q`` query tokens (h or h+M), ``p`` proprio
+dim, ``S`` VLM tokens, ``E`` VLM width, ``D`` feature width, ``K`` selected tokens.
 """
 
 from __future__ import annotations
@@ -78,7 +80,8 @@ class ProprioCrossAttentionBlock(nn.Module):
     def forward(
         self, hidden_states: Tensor, encoder_hidden_states: Tensor, encoder_attention_mask: Tensor | None
     ) -> Tensor:
-        """Args: hidden_states (B, Q, D); encoder_hidden_states (B, S, E); encoder_attention_mask (B, S) True=valid.
+        """Args: hidden_states (B, Q, D); encoder_hidden_states (B, S, E); encoder_attention_mask (B, S)
+        True=valid.
 
         Returns:
             (B, Q, D) updated query features.
@@ -93,8 +96,9 @@ class ProprioCrossAttentionBlock(nn.Module):
 class ProprioQueryEmbedding(nn.Module):
     """``Q_proprio = Linear(S_t)`` (or ``Linear([S_t, G])``) plus a learned per-step embedding.
 
-    The paper writes only the Linear; the per-step embedding is our addition so that the order of the history and
-    trace steps (and which tokens are trace) survives attention, which is permutation-equivariant over queries.
+    The paper writes only the Linear; the per-step embedding is our addition so that the order of the history
+    and trace steps (and which tokens are trace) survives attention, which is permutation-equivariant over
+    queries.
     """
 
     def __init__(self, proprio_dim: int, num_queries: int, dim: int) -> None:
@@ -107,7 +111,8 @@ class ProprioQueryEmbedding(nn.Module):
         """Args: proprio (B, Q, p). Returns (B, Q, D)."""
         if proprio.shape[1] != self.step_embedding.shape[0]:
             raise ValueError(
-                f"expected {self.step_embedding.shape[0]} proprio steps (history [+ trace]), got {proprio.shape[1]}"
+                f"expected {self.step_embedding.shape[0]} proprio steps (history [+ trace]), got "
+                f"{proprio.shape[1]}"
             )
         return self.proj(proprio) + self.step_embedding
 
@@ -163,8 +168,9 @@ class TopKTokenPooling(nn.Module):
     """Table-4 baselines: select K VLM tokens by a state-independent score (appendix D.1).
 
     Args:
-        method: "mean" (similarity to the masked mean), "max" (L2 norm) or "attn" (learned query q, scale alpha).
-        proprio_dim, num_queries: as in ``ProprioCrossAttention`` (the proprio tokens are passed through).
+        method: "mean" (similarity to the masked mean), "max" (L2 norm) or "attn" (learned query q, scale
+        alpha). proprio_dim, num_queries: as in ``ProprioCrossAttention`` (the proprio tokens are passed
+        through).
         encoder_dim: E, VLM hidden size.
         dim: D, feature width.
         top_k: K, tokens kept (clamped to the sequence length).
@@ -191,7 +197,8 @@ class TopKTokenPooling(nn.Module):
             self.score_scale = nn.Parameter(torch.tensor(1.0 / encoder_dim**0.5))
 
     def token_scores(self, encoder_hidden_states: Tensor, valid: Tensor) -> Tensor:
-        """Args: encoder_hidden_states (B, S, E); valid (B, S) bool. Returns (B, S) scores, -inf on padding."""
+        """Args: encoder_hidden_states (B, S, E); valid (B, S) bool. Returns (B, S) scores, -inf on
+        padding."""
         h = encoder_hidden_states.float()
         if self.method == "mean":
             w = valid.unsqueeze(-1).float()
@@ -209,8 +216,8 @@ class TopKTokenPooling(nn.Module):
         """Args: proprio (B, Q, p); encoder_hidden_states (B, S, E); encoder_attention_mask (B, S) True=valid.
 
         Returns:
-            features (B, Q + K, D): proprio tokens then the selected VLM tokens; mask (B, Q + K), False where a
-            sequence has fewer than K valid tokens.
+            features (B, Q + K, D): proprio tokens then the selected VLM tokens; mask (B, Q + K), False where
+            a sequence has fewer than K valid tokens.
         """
         b, s, _ = encoder_hidden_states.shape
         valid = torch.ones(b, s, dtype=torch.bool, device=encoder_hidden_states.device)

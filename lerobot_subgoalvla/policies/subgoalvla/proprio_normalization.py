@@ -3,23 +3,25 @@
 Why one step of our own instead of LeRobot's ``normalizer_processor``:
 
 - ``observation.state_history`` (h, p) and ``observation.subgoal_trace`` (M, p) are sequences of
-  ``observation.state`` vectors. The policy builds the history at inference from normalised states and the planner
-  predicts a trace in the same space as its queries, so all three must be normalised with the *state's*
-  statistics. LeRobot's normaliser gives each column its own pooled statistics instead.
-- CALVIN's TCP orientation (``robot_obs[3:6]``, XYZ Euler angles) lives in (-pi, pi]. With the gripper pointing
-  down the roll sits at +-pi, so a tiny real rotation wraps from +3.14 to -3.14 (48 wraps in 1726 frames of the
-  demo's data). Mean/std statistics of such a column are meaningless (std 2.2 rad) and a z-score turns the wrap
-  into a jump of several standard deviations that the planner would have to predict 14-21 steps ahead. Here each
-  angle is written as its wrapped difference to the robot's home orientation (``angle_home``), which is
-  continuous wherever the gripper can go (the cut sits at a roll of 0 / yaw of +-pi, i.e. pointing up or turned
-  half round), then divided by ``angle_scale``. No dataset statistic is used for the angles.
+  ``observation.state`` vectors. The policy builds the history at inference from normalised states and the
+  planner predicts a trace in the same space as its queries, so all three must be normalised with the
+  *state's* statistics. LeRobot's normaliser gives each column its own pooled statistics instead.
+- CALVIN's TCP orientation (``robot_obs[3:6]``, XYZ Euler angles) lives in (-pi, pi]. With the gripper
+  pointing down the roll sits at +-pi, so a tiny real rotation wraps from +3.14 to -3.14 (48 wraps in 1726
+  frames of the demo's data). Mean/std statistics of such a column are meaningless (std 2.2 rad) and a z-score
+  turns the wrap into a jump of several standard deviations that the planner would have to predict 14-21 steps
+  ahead. Here each angle is written as its wrapped difference to the robot's home orientation
+  (``angle_home``), which is continuous wherever the gripper can go (the cut sits at a roll of 0 / yaw of
+  +-pi, i.e. pointing up or turned half round), then divided by ``angle_scale``. No dataset statistic is used
+  for the angles.
 
 The step holds the statistics itself (saved in the pipeline's safetensors) and LeRobot's normaliser is told to
-leave ``STATE`` features alone (``IDENTITY`` in the policy's normalisation mapping), so no reordering of steps and
-no ``lerobot-train --policy.path`` statistics override can normalise a proprioceptive tensor twice or with other
-numbers. :meth:`ProprioNormalizerProcessorStep.decode` inverts it (ghost-robot rendering of traces).
+leave ``STATE`` features alone (``IDENTITY`` in the policy's normalisation mapping), so no reordering of steps
+and no ``lerobot-train --policy.path`` statistics override can normalise a proprioceptive tensor twice or with
+other numbers. :meth:`ProprioNormalizerProcessorStep.decode` inverts it (ghost-robot rendering of traces).
 
-Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``p`` proprio dim (15 for CALVIN), ``h`` history steps, ``M`` trace steps.
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``p`` proprio dim (15 for CALVIN), ``h``
+history steps, ``M`` trace steps.
 """
 
 from __future__ import annotations
@@ -95,7 +97,8 @@ class ProprioNormalizerProcessorStep(ObservationProcessorStep):
         std = torch.as_tensor(stats["std"], dtype=torch.float64).flatten().tolist()
         return cls(mean, std, list(angle_dims), list(angle_home), angle_scale)
 
-    # Forward / inverse ------------------------------------------------------------------------------------------
+    # Forward / inverse
+    # ------------------------------------------------------------------------------------------
     def _tensors(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """mean (p,), std + eps (p,), angle mask (p,) bool and home offsets (p,) on ``like``'s device (cached:
         this runs on every env step and every batch)."""
@@ -148,7 +151,8 @@ class ProprioNormalizerProcessorStep(ObservationProcessorStep):
             observation[key] = self.encode(values)
         return observation
 
-    # Persistence ------------------------------------------------------------------------------------------------
+    # Persistence
+    # ------------------------------------------------------------------------------------------------
     def get_config(self) -> dict[str, Any]:
         return {
             "angle_dims": list(self.angle_dims),

@@ -1,14 +1,15 @@
 """The learning-rate schedule of SubgoalVLA's two training stages (paper section 4.3, appendix C).
 
 Appendix C trains each stage with a linear warmup (5 % of its steps) and a cosine decay to 3e-6. When one
-``lerobot-train`` run switches from stage I to stage II at ``stage2_start_step``, a single cosine over the whole
-run would start stage II far below the peak (27 % of it for a switch at 60 %), so stage II would barely train.
-This schedule restarts instead: each stage gets its own warmup + cosine over its own steps. Without a switch it is
-the plain warmup + cosine of appendix C. It is a LambdaLR, so every parameter group keeps its own peak rate
-(table 8) and the factor applies to all groups alike; ``--resume=true`` continues at the saved step.
+``lerobot-train`` run switches from stage I to stage II at ``stage2_start_step``, a single cosine over the
+whole run would start stage II far below the peak (27 % of it for a switch at 60 %), so stage II would barely
+train.
+This schedule restarts instead: each stage gets its own warmup + cosine over its own steps. Without a switch
+it is the plain warmup + cosine of appendix C. It is a LambdaLR, so every parameter group keeps its own peak
+rate (table 8) and the factor applies to all groups alike; ``--resume=true`` continues at the saved step.
 
-Registered with LeRobot as the scheduler type ``subgoalvla_two_stage_cosine``; ``SubgoalVLAConfig`` returns it as
-its scheduler preset.
+Registered with LeRobot as the scheduler type ``subgoalvla_two_stage_cosine``; ``SubgoalVLAConfig`` returns it
+as its scheduler preset.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ from torch.optim.lr_scheduler import LambdaLR
 
 
 def warmup_cosine_factor(step: int, length: int, warmup_ratio: float, final_ratio: float) -> float:
-    """Learning-rate factor at ``step`` of a phase of ``length`` steps: linear warmup, then cosine to ``final_ratio``."""
+    """Learning-rate factor at ``step`` of a phase of ``length`` steps: linear warmup, then cosine to
+    ``final_ratio``."""
     warmup = max(1, int(warmup_ratio * length))
     if step < warmup:
         return (step + 1) / warmup
@@ -36,7 +38,8 @@ class TwoStageCosineSchedulerConfig(LRSchedulerConfig):
     """Warmup + cosine per training stage, restarted at the stage I -> II switch (module docstring).
 
     Attributes:
-        num_warmup_steps: unused by this schedule (LeRobot's base field); the warmup is ``warmup_ratio`` of each
+        num_warmup_steps: unused by this schedule (LeRobot's base field); the warmup is ``warmup_ratio`` of
+        each
             stage.
         warmup_ratio: fraction of each stage spent in linear warmup.
         final_ratio: learning rate at the end of each stage as a fraction of the group's peak.

@@ -1,7 +1,9 @@
-"""Symbolic chain states -> simulator states (calvin-spec 4.2): the fixed robot start and each chain's scene_obs.
+"""Symbolic chain states -> simulator states (calvin-spec 4.2): the fixed robot start and each chain's
+scene_obs.
 
 Split from ``chains.py`` (the chain sampler) by concern. The block layout of a symbolic state is seeded with
-``RandomState(h)``, ``h`` = FNV-1 32-bit with initial value 0 over the UTF-16-LE bytes of ``str(state.values())``
+``RandomState(h)``, ``h`` = FNV-1 32-bit with initial value 0 over the UTF-16-LE bytes of
+``str(state.values())``
 as CPython prints it: re-implementations that hash UTF-8 or start from the FNV offset basis get other layouts.
 """
 
@@ -17,17 +19,39 @@ from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS
 
 #: Symbolic state keys and initial values, in CALVIN's product order (spec 4.1). Order matters: it fixes the
 #: state indices (hence the per-state seeds) and the string that is hashed for the scene layout.
-SYMBOLIC_VALUES: Mapping[str, tuple[Any, ...]] = MappingProxyType({
-    "led": (0, 1), "lightbulb": (0, 1), "slider": ("right", "left"), "drawer": ("closed", "open"),
-    "red_block": ("table", "slider_right", "slider_left"), "blue_block": ("table", "slider_right", "slider_left"),
-    "pink_block": ("table", "slider_right", "slider_left"), "grasped": (0,),
-})  # fmt: skip
+SYMBOLIC_VALUES: Mapping[str, tuple[Any, ...]] = MappingProxyType(
+    {
+        "led": (0, 1),
+        "lightbulb": (0, 1),
+        "slider": ("right", "left"),
+        "drawer": ("closed", "open"),
+        "red_block": ("table", "slider_right", "slider_left"),
+        "blue_block": ("table", "slider_right", "slider_left"),
+        "pink_block": ("table", "slider_right", "slider_left"),
+        "grasped": (0,),
+    }
+)
 
 #: The fixed robot state every chain starts from (spec 4.2; gripper open).
-EVAL_ROBOT_OBS: np.ndarray = np.array([
-    0.02586889, -0.2313129, 0.5712808, 3.09045411, -0.02908596, 1.50013585, 0.07999963,
-    -1.21779124, 1.03987629, 2.11978254, -2.34205014, -0.87015899, 1.64119093, 0.55344928, 1.0,
-])  # fmt: skip
+EVAL_ROBOT_OBS: np.ndarray = np.array(
+    [
+        0.02586889,
+        -0.2313129,
+        0.5712808,
+        3.09045411,
+        -0.02908596,
+        1.50013585,
+        0.07999963,
+        -1.21779124,
+        1.03987629,
+        2.11978254,
+        -2.34205014,
+        -0.87015899,
+        1.64119093,
+        0.55344928,
+        1.0,
+    ]
+)
 EVAL_ROBOT_OBS.setflags(write=False)
 
 _BLOCK_SLIDER_LEFT = (-2.40851662e-01, 9.24044687e-02, 4.60990009e-01)

@@ -1,18 +1,18 @@
 """CALVIN's long-horizon evaluation (LH-MTLC): the five-task chains and their per-episode results.
 
 Clean-room re-implementation of calvin_agent ``evaluation/multistep_sequences.py`` (``get_sequences``) and
-``evaluation/utils.py`` (``get_env_state_for_initial_condition``), calvin-spec.md sections 4.1-4.2. The output is
-identical, chain by chain, to CALVIN's official 1000 chains (spec 4.1 check values are the tests):
+``evaluation/utils.py`` (``get_env_state_for_initial_condition``), calvin-spec.md sections 4.1-4.2. The output
+is identical, chain by chain, to CALVIN's official 1000 chains (spec 4.1 check values are the tests):
 
 1. 192 symbolic initial states: the product of :data:`SYMBOLIC_VALUES` in key order, kept iff one or two
    blocks are on the table and each slider slot holds at most one block.
 2. Quotas: ``np.array_split(range(num_chains), 192)``; state ``i`` draws with ``RandomState(i)``:
-   ``choice(34, 5, replace=False)`` over the task list until it has its quota of valid sequences (each task has
-   exactly one applicable alternative in turn, five distinct categories).
+   ``choice(34, 5, replace=False)`` over the task list until it has its quota of valid sequences (each task
+   has exactly one applicable alternative in turn, five distinct categories).
 3. The ``(state, sequence)`` list, in state order, is shuffled with ``RandomState(0).shuffle``.
 4. Simulator state (spec 4.2): fixed :data:`EVAL_ROBOT_OBS`; ``scene_obs`` from the symbolic state, the two
-   table slots shuffled and three block yaws drawn from ``RandomState(h)``, ``h`` = FNV-1 32-bit (initial value
-   0) over the UTF-16-LE bytes of ``str(state.values())`` as CPython prints it.
+   table slots shuffled and three block yaws drawn from ``RandomState(h)``, ``h`` = FNV-1 32-bit (initial
+   value 0) over the UTF-16-LE bytes of ``str(state.values())`` as CPython prints it.
 
 Per-episode results (:class:`EpisodeResult`) are JSON lines written by the env (``results_path``) or derived
 from lerobot-eval's ``eval_info.json`` (one ``task_id`` per chain, ``sum_rewards`` = completed subtasks);
@@ -111,7 +111,8 @@ def _symbolic_tasks() -> dict[str, tuple[tuple[Alternative, ...], int]]:
             6,
         )
     for task, key, before, after, category in (
-        ("move_slider_left", "slider", "right", "left", 2), ("move_slider_right", "slider", "left", "right", 2),
+        ("move_slider_left", "slider", "right", "left", 2),
+        ("move_slider_right", "slider", "left", "right", 2),
         ("open_drawer", "drawer", "closed", "open", 3), ("close_drawer", "drawer", "open", "closed", 3),
         ("turn_on_lightbulb", "lightbulb", 0, 1, 8), ("turn_off_lightbulb", "lightbulb", 1, 0, 8),
         ("turn_on_led", "led", 0, 1, 8), ("turn_off_led", "led", 1, 0, 8),
@@ -204,18 +205,19 @@ class _TransitionTable:
         return (current != self.sink) & np.all(np.diff(categories, axis=1) != 0, axis=1)
 
 
-#: ``random_interval(i)`` bounds of a Fisher-Yates shuffle of 34 items, i = 33..1, as ``randint`` highs (i + 1).
+#: ``random_interval(i)`` bounds of a Fisher-Yates shuffle of 34 items, i =
+#: 33..1, as ``randint`` highs (i + 1).
 _SHUFFLE_HIGHS = np.arange(len(TASK_NAMES), 1, -1, dtype=np.int32)
 
 
 def _draw_choices(rs: np.random.RandomState, count: int) -> np.ndarray:
     """``count`` successive ``rs.choice(34, 5, replace=False)`` draws, (count, 5), vectorised.
 
-    Legacy ``choice`` without replacement is ``permutation(34)[:5]``: a Fisher-Yates shuffle swapping item ``i``
-    with ``j = random_interval(i)`` for i = 33..1 (masked rejection sampling on 32-bit draws). Legacy ``randint``
-    with an array of highs draws each ``j`` with exactly that rejection rule, in order, so the random stream and
-    the result are identical to calling ``choice`` ``count`` times (tested), about 10x faster
-    (``benchmarks/calvin_chains.py``).
+    Legacy ``choice`` without replacement is ``permutation(34)[:5]``: a Fisher-Yates shuffle swapping item
+    ``i`` with ``j = random_interval(i)`` for i = 33..1 (masked rejection sampling on 32-bit draws). Legacy
+    ``randint`` with an array of highs draws each ``j`` with exactly that rejection rule, in order, so the
+    random stream and the result are identical to calling ``choice`` ``count`` times (tested), about 10x
+    faster (``benchmarks/calvin_chains.py``).
     """
     n = len(_SHUFFLE_HIGHS) + 1
     # int32: 32-bit masked rejection, same stream as random_interval (8/16-bit dtypes would buffer: different)
@@ -281,7 +283,8 @@ class Chain:
 
 @functools.lru_cache(maxsize=4)
 def _chain_plan(num_chains: int) -> tuple[tuple[int, tuple[str, ...]], ...]:
-    """(initial-state index, task names) per chain, in CALVIN's final (shuffled) order. Cached: ~10 s of CPU."""
+    """(initial-state index, task names) per chain, in CALVIN's final (shuffled) order. Cached: ~10 s of
+    CPU."""
     states = initial_states()
     quotas = [len(part) for part in np.array_split(np.arange(num_chains), len(states))]
     table = _TransitionTable()
@@ -336,7 +339,8 @@ class OneLineArgumentParser(argparse.ArgumentParser):
 
 
 def configure_cli_logging() -> None:
-    """INFO-level logging for the CLIs; importing LeRobot may already have set up a WARNING-level root logger."""
+    """INFO-level logging for the CLIs; importing LeRobot may already have set up a WARNING-level root
+    logger."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger().setLevel(logging.INFO)
 
@@ -351,7 +355,8 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     args.stop = args.num_chains if args.stop is None else args.stop
     if args.num_chains < 1 or not 0 <= args.start < args.stop <= args.num_chains:
         parser.error(
-            f"need 0 <= --start < --stop <= --num-chains >= 1, got {args.start}, {args.stop}, {args.num_chains}"
+            "need 0 <= --start < --stop <= --num-chains >= 1, "
+            f"got {args.start}, {args.stop}, {args.num_chains}"
         )
     return args
 

@@ -6,8 +6,8 @@ what CALVIN's ``print_and_save`` reports:
 
 - ``SR_k`` = #(chains with at least k subtasks completed in a row) / N, k = 1..5 (the "LH-k" table);
 - the average length = mean number of completed subtasks = sum_k SR_k (0..5);
-- per task ``success / total``: the subtasks before a chain's failure succeed, the failed one fails, later ones
-  are not counted.
+- per task ``success / total``: the subtasks before a chain's failure succeed, the failed one fails, later
+  ones are not counted.
 
 Outputs: the table in the log, ``results.json`` (CALVIN's structure: ``avg_seq_len``, ``chain_sr`` {1..5},
 ``task_info`` {task: {success, total}}, plus ``num_chains``) and ``results.png`` (LH-1..5 bars and per-task
@@ -16,7 +16,8 @@ success bars, like figure 5 of the SubgoalVLA paper).
 Usage::
 
     subgoalvla-calvin-report outputs/eval/calvin/results.jsonl --output-dir outputs/eval/calvin
-    subgoalvla-calvin-report shard0/eval_info.json shard1/eval_info.json --output-dir report --chains chains.json
+    subgoalvla-calvin-report shard0/eval_info.json shard1/eval_info.json --output-dir report --chains
+    chains.json
 """
 
 from __future__ import annotations

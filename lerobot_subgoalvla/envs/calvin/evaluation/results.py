@@ -1,16 +1,16 @@
 """Per-episode results of CALVIN's long-horizon evaluation: records, JSON lines, shards, lerobot-eval import.
 
-One :class:`EpisodeResult` per evaluated chain (calvin-spec.md 4.3): how many of its five subtasks were completed
-in a row before the first failure. Two sources produce them:
+One :class:`EpisodeResult` per evaluated chain (calvin-spec.md 4.3): how many of its five subtasks were
+completed in a row before the first failure. Two sources produce them:
 
 - the env, when given a ``results_path``, appends one JSON line per finished chain
   (:func:`append_episode_result`);
-- lerobot-eval's ``eval_info.json``, where each chain is one ``task_id`` and ``per_task[*].metrics.sum_rewards``
-  holds the completed-subtask count (reward 1 per subtask; plugin guide 3.4), via
-  :func:`episode_results_from_eval_info`.
+- lerobot-eval's ``eval_info.json``, where each chain is one ``task_id`` and
+  ``per_task[*].metrics.sum_rewards`` holds the completed-subtask count (reward 1 per subtask; plugin guide
+  3.4), via :func:`episode_results_from_eval_info`.
 
-Chains can be evaluated in shards (ranges of chain ids, on several processes or machines); :func:`merge_results`
-joins the shards by ``chain_id`` and refuses duplicates, so no chain is counted twice.
+Chains can be evaluated in shards (ranges of chain ids, on several processes or machines);
+:func:`merge_results` joins the shards by ``chain_id`` and refuses duplicates, so no chain is counted twice.
 """
 
 from __future__ import annotations
@@ -53,7 +53,8 @@ class EpisodeResult:
     Args:
         chain_id: index of the chain in the chain list (``generate_chains(num_chains)``).
         tasks: the chain's task names, in order.
-        num_completed: subtasks completed in a row before the first failure (0..len(tasks)); CALVIN's "result".
+        num_completed: subtasks completed in a row before the first failure (0..len(tasks)); CALVIN's
+        "result".
         subtask_steps: env steps spent on each attempted subtask (the successful ones and the failed one), or
             None when unknown (results imported from ``eval_info.json``).
     """
@@ -73,7 +74,8 @@ class EpisodeResult:
         attempted = min(self.num_completed + 1, len(self.tasks))
         if self.subtask_steps is not None and len(self.subtask_steps) != attempted:
             raise ValueError(
-                f"chain {self.chain_id}: {len(self.subtask_steps)} subtask_steps for {attempted} attempted subtasks"
+                f"chain {self.chain_id}: {len(self.subtask_steps)} subtask_steps for {attempted} attempted "
+                "subtasks"
             )
 
     @property
@@ -89,15 +91,24 @@ class EpisodeResult:
         return None if self.subtask_steps is None else sum(self.subtask_steps)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"chain_id": self.chain_id, "tasks": list(self.tasks), "num_completed": self.num_completed,
-                "outcomes": list(self.outcomes), "steps": self.steps,
-                "subtask_steps": None if self.subtask_steps is None else list(self.subtask_steps)}  # fmt: skip
+        return {
+            "chain_id": self.chain_id,
+            "tasks": list(self.tasks),
+            "num_completed": self.num_completed,
+            "outcomes": list(self.outcomes),
+            "steps": self.steps,
+            "subtask_steps": None if self.subtask_steps is None else list(self.subtask_steps),
+        }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> EpisodeResult:
         steps = data.get("subtask_steps")
-        result = cls(int(data["chain_id"]), tuple(data["tasks"]), int(data["num_completed"]),
-                     None if steps is None else tuple(int(s) for s in steps))  # fmt: skip
+        result = cls(
+            int(data["chain_id"]),
+            tuple(data["tasks"]),
+            int(data["num_completed"]),
+            None if steps is None else tuple(int(s) for s in steps),
+        )
         if "outcomes" in data and tuple(data["outcomes"]) != result.outcomes:
             raise ValueError(f"chain {result.chain_id}: outcomes {data['outcomes']} contradict num_completed")
         return result
@@ -148,14 +159,16 @@ def merge_results(shards: Mapping[str, Iterable[EpisodeResult]]) -> list[Episode
 def episode_results_from_eval_info(
     eval_info: Mapping[str, Any], chain_tasks: Mapping[int, Sequence[str]]
 ) -> list[EpisodeResult]:
-    """Results from lerobot-eval's ``eval_info.json``: ``task_id`` = chain id, ``sum_rewards`` = completed count.
+    """Results from lerobot-eval's ``eval_info.json``: ``task_id`` = chain id, ``sum_rewards`` = completed
+    count.
 
     Args:
         eval_info: the parsed ``eval_info.json`` (needs ``per_task[*].task_id`` and ``.metrics.sum_rewards``).
         chain_tasks: chain id -> its task names, from the chain list the evaluation used.
 
     Raises:
-        ValueError: missing fields, a chain id outside ``chain_tasks``, not exactly one episode per chain, or a
+        ValueError: missing fields, a chain id outside ``chain_tasks``, not exactly one episode per chain, or
+        a
             non-integer reward sum.
     """
     if not isinstance(eval_info, Mapping) or not isinstance(eval_info.get("per_task"), list):
@@ -171,8 +184,10 @@ def episode_results_from_eval_info(
                 f"eval_info task_id {chain_id} is not in the chain list; pass the chains file used"
             )
         if len(sums) != 1:
-            raise ValueError(f"chain {chain_id} has {len(sums)} episodes; CALVIN runs each chain once "
-                             "(lerobot-eval --eval.n_episodes=1)")  # fmt: skip
+            raise ValueError(
+                f"chain {chain_id} has {len(sums)} episodes; CALVIN runs each chain once "
+                "(lerobot-eval --eval.n_episodes=1)"
+            )
         completed = round(float(sums[0]))
         if abs(float(sums[0]) - completed) > 1e-6:
             raise ValueError(f"chain {chain_id}: sum_rewards {sums[0]} is not a whole number of subtasks")

@@ -74,13 +74,21 @@ def _grasp_once(ctx: SkillContext, block: str, turn: float, tilt: float) -> Skil
     pos, rot = ctx.block_pose(block)
     target = pos + np.array([0, 0, ctx.rng.uniform(0.0, 0.006) + (0.006 if tilt else 0.0)])
     yield from ctx.servo(target - 0.03 * approach, euler, tol=0.01, what=f"pre-grasp {block}")
-    yield from ctx.servo(target, euler, speed=ctx.motion.slow_speed, tol=0.006, max_steps=40,
-                         what=f"grasp {block}", allow_timeout=True)  # fmt: skip
+    yield from ctx.servo(
+        target,
+        euler,
+        speed=ctx.motion.slow_speed,
+        tol=0.006,
+        max_steps=40,
+        what=f"grasp {block}",
+        allow_timeout=True,
+    )
     yield from ctx.set_gripper(GRIPPER_CLOSE)
 
 
 def grasp(ctx: SkillContext, block: str, turn: float = 0.0, tilt: float = 0.0, attempts: int = 2) -> Skill:
-    """Grasp ``block`` (see :func:`_grasp_once`); on a miss, open, back off and try again from its new pose."""
+    """Grasp ``block`` (see :func:`_grasp_once`); on a miss, open, back off and try again from its new
+    pose."""
     for attempt in range(attempts):
         yield from _grasp_once(ctx, block, turn, tilt)
         if ctx.gripper_width() > 0.01 and ctx.robot_holds(block):
@@ -107,7 +115,8 @@ def lift(ctx: SkillContext, block: str, height: float = 0.1) -> Skill:
 
 
 def lift_out(ctx: SkillContext, block: str, exit_y: float) -> Skill:
-    """Grasp a block on the cabinet shelf (tilted fingers), raise it and pull it out toward the robot to ``exit_y``."""
+    """Grasp a block on the cabinet shelf (tilted fingers), raise it and pull it out toward the robot to
+    ``exit_y``."""
     # Left of the desk centre the shelf is close to the robot base, where a steep wrist tilt is hard to reach:
     # there the IK swings the wrist near the block (the TCP wobbles by 2-3 cm and knocks it) and the hand
     # catches the cabinet's slanted end wall. A milder tilt avoids both (procedural scene, left-shelf
@@ -119,8 +128,9 @@ def lift_out(ctx: SkillContext, block: str, exit_y: float) -> Skill:
         tcp + [0, 0, 0.045], euler, speed=ctx.motion.slow_speed, tol=0.01, what=f"raise {block}"
     )
     tcp, _ = ctx.tcp()
-    yield from ctx.servo(np.array([tcp[0], min(tcp[1], exit_y), tcp[2] + 0.03]), euler, tol=0.015,
-                         what=f"carry {block} out")  # fmt: skip
+    yield from ctx.servo(
+        np.array([tcp[0], min(tcp[1], exit_y), tcp[2] + 0.03]), euler, tol=0.015, what=f"carry {block} out"
+    )
     if not ctx.robot_holds(block):
         raise ExpertFailureError(f"{block} slipped while lifting")
 
@@ -140,8 +150,15 @@ def rotate(ctx: SkillContext, block: str, direction: float) -> Skill:
     tcp, euler = ctx.tcp()
     turned = euler + np.array([0, 0, turn])
     yield from ctx.servo(tcp, turned, rot_tol=0.04, max_steps=90, what="turn", allow_timeout=True)
-    yield from ctx.servo(tcp - [0, 0, 0.02], turned, speed=ctx.motion.slow_speed, tol=0.006, max_steps=30,
-                         what="set down", allow_timeout=True)  # fmt: skip
+    yield from ctx.servo(
+        tcp - [0, 0, 0.02],
+        turned,
+        speed=ctx.motion.slow_speed,
+        tol=0.006,
+        max_steps=30,
+        what="set down",
+        allow_timeout=True,
+    )
     yield from release_and_retreat(ctx)
 
 
@@ -165,8 +182,9 @@ def push(ctx: SkillContext, block: str, direction: float) -> Skill:
     yield from ctx.servo(start, euler, speed=ctx.motion.slow_speed, tol=0.008, what="push start")
     distance = ctx.rng.uniform(0.17, 0.19)
     end = start + np.array([direction * distance, 0, 0])
-    yield from ctx.servo(end, euler, speed=ctx.motion.slow_speed, tol=0.01, max_steps=60, what="push",
-                         allow_timeout=True)  # fmt: skip
+    yield from ctx.servo(
+        end, euler, speed=ctx.motion.slow_speed, tol=0.01, max_steps=60, what="push", allow_timeout=True
+    )
     tcp, _ = ctx.tcp()
     yield from ctx.servo(
         tcp + np.array([-direction * 0.02, 0, 0.08]), euler, tol=0.02, what="retreat", allow_timeout=True
@@ -188,8 +206,9 @@ def push_into_drawer(ctx: SkillContext, block: str) -> Skill:
     drawer_lo, _ = ctx.link_aabb("drawer_link")
     edge_y = ctx.link_aabb("base_link")[0][1]
     end = np.array([start[0], edge_y - 0.05, start[2]])
-    yield from ctx.servo(end, euler, speed=ctx.motion.slow_speed, tol=0.01, max_steps=60, what="push",
-                         allow_timeout=True)  # fmt: skip
+    yield from ctx.servo(
+        end, euler, speed=ctx.motion.slow_speed, tol=0.01, max_steps=60, what="push", allow_timeout=True
+    )
     tcp, _ = ctx.tcp()
     yield from ctx.servo(tcp + [0, 0.03, 0.1], euler, tol=0.02, what="retreat", allow_timeout=True)
 
@@ -204,10 +223,10 @@ def place_on(
 ) -> Skill:
     """Carry the held block over ``target_xy``, lower it onto ``surface_z`` (its bottom), release, retreat.
 
-    ``tilt`` > 0 leans the fingers toward +y and approaches along them (from the front and above), which is how
-    the hand reaches into the cabinet's slanted opening (place_in_slider); the block turns with the fingers.
-    ``closing_yaw`` turns the wrist first so that the fingers close along that direction modulo pi (tilted
-    placing uses pi/2: fingers along x, block level sideways, hand parallel to the opening).
+    ``tilt`` > 0 leans the fingers toward +y and approaches along them (from the front and above), which is
+    how the hand reaches into the cabinet's slanted opening (place_in_slider); the block turns with the
+    fingers. ``closing_yaw`` turns the wrist first so that the fingers close along that direction modulo pi
+    (tilted placing uses pi/2: fingers along x, block level sideways, hand parallel to the opening).
     """
     tcp, euler = ctx.tcp()
     block_pos, _ = ctx.block_pose(block)
@@ -220,8 +239,9 @@ def place_on(
         closing_yaw = np.pi / 2
     if closing_yaw is not None:
         yaw = min((closing_yaw + k * np.pi for k in (-1, 0, 1)), key=lambda y: abs(wrap_angle(y - euler[2])))
-        yield from ctx.servo(tcp + [0, 0, 0.02], down_euler(yaw), tol=0.015, rot_tol=0.06, max_steps=90,
-                             what="turn wrist")  # fmt: skip
+        yield from ctx.servo(
+            tcp + [0, 0, 0.02], down_euler(yaw), tol=0.015, rot_tol=0.06, max_steps=90, what="turn wrist"
+        )
         euler = tilted_euler(yaw, tilt) if tilt else down_euler(yaw)
     if tilt:
         yield from ctx.transit(

@@ -1,7 +1,7 @@
 """Task scripts of the scripted CALVIN expert for the desk's fixtures: drawer, sliding door, button, switch.
 
-Split from ``expert_tasks`` (the block scripts) by concern. Handles and the switch knob are measured by ray casts on
-the loaded table, so the same code serves the procedural desk and CALVIN's tables A-D (spec 3.2).
+Split from ``expert_tasks`` (the block scripts) by concern. Handles and the switch knob are measured by ray
+casts on the loaded table, so the same code serves the procedural desk and CALVIN's tables A-D (spec 3.2).
 """
 
 from __future__ import annotations
@@ -62,7 +62,8 @@ def drawer(ctx: SkillContext, opening: bool) -> Skill:
     """Hook the closed fingers behind the drawer handle and pull (open) or push the handle back (close)."""
     handle = handle_geometry(ctx, "drawer_link")
     ctx.gripper = GRIPPER_CLOSE
-    # Fingers close along x (thin along y) and lean 40-50 deg toward +y so that the hand stays off the desk edge.
+    # Fingers close along x (thin along y) and lean 40-50 deg toward +y so that
+    # the hand stays off the desk edge.
     euler = tilted_euler(HOME_YAW + ctx.rng.uniform(-0.08, 0.08), ctx.rng.uniform(0.7, 0.85))
     x = 0.5 * (handle["x_min"] + handle["x_max"]) + ctx.rng.uniform(-0.02, 0.02)
     z = 0.5 * (handle["z_min"] + handle["z_max"]) + ctx.rng.uniform(-0.004, 0.004)
@@ -74,8 +75,9 @@ def drawer(ctx: SkillContext, opening: bool) -> Skill:
     state = ctx.joint_state("drawer_link")
     travel = ctx.rng.uniform(0.16, 0.19) if opening else -(state + 0.03)
     goal = np.array([x, behind - travel, z])
-    yield from ctx.servo(goal, euler, speed=ctx.motion.slow_speed, tol=0.01, max_steps=70,
-                         what="drawer", allow_timeout=True)  # fmt: skip
+    yield from ctx.servo(
+        goal, euler, speed=ctx.motion.slow_speed, tol=0.01, max_steps=70, what="drawer", allow_timeout=True
+    )
     tcp, _ = ctx.tcp()
     back = -0.03 if opening else -0.04
     yield from ctx.servo(tcp + [0, back, 0.0], euler, tol=0.015, what="release handle", allow_timeout=True)
@@ -92,7 +94,8 @@ def slider(ctx: SkillContext, direction: float) -> Skill:
     ctx.gripper = GRIPPER_CLOSE
     face_angle = float(np.arctan(handle["face_slope"]))  # 0 for a vertical face, 30 deg for CALVIN's door
     normal = np.array([0.0, -np.cos(face_angle), np.sin(face_angle)])  # outward, toward the robot
-    # Pushing right, the TCP works near the robot base, where a wrist tilted 60 deg is hard to reach: lean less.
+    # Pushing right, the TCP works near the robot base, where a wrist tilted 60
+    # deg is hard to reach: lean less.
     lean = 0.0 if direction < 0 else 0.35
     euler = tilted_euler(
         ctx.rng.uniform(-0.08, 0.08), np.pi / 2 - face_angle - lean + ctx.rng.uniform(-0.1, 0.05)
@@ -102,12 +105,20 @@ def slider(ctx: SkillContext, direction: float) -> Skill:
     depth = (handle["face_y"] - handle["front_y"]) * np.cos(face_angle)  # handle protrusion along the normal
     side_x = handle["x_max"] + 0.055 if direction < 0 else handle["x_min"] - 0.055  # hand clear of the handle
     contact = np.array([side_x, face_y, z]) + normal * depth * ctx.rng.uniform(0.45, 0.6)
-    yield from ctx.servo(contact + normal * 0.07, euler, tol=0.012, rot_tol=0.08, max_steps=100,
-                         what="before handle")  # fmt: skip
+    yield from ctx.servo(
+        contact + normal * 0.07, euler, tol=0.012, rot_tol=0.08, max_steps=100, what="before handle"
+    )
     yield from ctx.servo(contact, euler, speed=ctx.motion.slow_speed, tol=0.008, what="handle side")
     travel = ctx.rng.uniform(0.22, 0.25)  # includes the ~5 cm gap to the handle
-    yield from ctx.servo(contact + [direction * travel, 0, 0], euler, speed=ctx.motion.slow_speed,
-                         tol=0.01, max_steps=70, what="slide", allow_timeout=True)  # fmt: skip
+    yield from ctx.servo(
+        contact + [direction * travel, 0, 0],
+        euler,
+        speed=ctx.motion.slow_speed,
+        tol=0.01,
+        max_steps=70,
+        what="slide",
+        allow_timeout=True,
+    )
     tcp, _ = ctx.tcp()
     yield from ctx.servo(
         tcp + normal * 0.07 + [-direction * 0.01, 0, 0], euler, tol=0.015, what="retreat", allow_timeout=True
@@ -115,15 +126,23 @@ def slider(ctx: SkillContext, direction: float) -> Skill:
 
 
 def press_button(ctx: SkillContext) -> Skill:
-    """Press the button down past its threshold with the closed fingers and let it spring back (LED toggles)."""
+    """Press the button down past its threshold with the closed fingers and let it spring back (LED
+    toggles)."""
     lo, hi = ctx.link_aabb("button_link")
     centre = 0.5 * (lo + hi) + np.append(ctx.jitter(0.008, 2), 0.0)
     ctx.gripper = GRIPPER_CLOSE
     euler = down_euler(HOME_YAW + ctx.rng.uniform(-0.2, 0.2))
     top = hi[2]
     yield from ctx.servo(np.array([centre[0], centre[1], top + 0.06]), euler, tol=0.01, what="above button")
-    yield from ctx.servo(np.array([centre[0], centre[1], top - 0.02]), euler, speed=ctx.motion.slow_speed,
-                         tol=0.006, max_steps=30, what="press", allow_timeout=True)  # fmt: skip
+    yield from ctx.servo(
+        np.array([centre[0], centre[1], top - 0.02]),
+        euler,
+        speed=ctx.motion.slow_speed,
+        tol=0.006,
+        max_steps=30,
+        what="press",
+        allow_timeout=True,
+    )
     yield from ctx.hold(GRIPPER_CLOSE, 2)
     yield from ctx.servo(
         np.array([centre[0], centre[1], top + 0.07]),
@@ -178,10 +197,18 @@ def move_switch(ctx: SkillContext, up: bool) -> Skill:
     state = ctx.joint_state("switch_link")
     travel = (0.088 - state if up else state) + ctx.rng.uniform(0.015, 0.025)
     direction = SWITCH_AXIS if up else -SWITCH_AXIS
-    yield from ctx.servo(contact + 0.06 * SWITCH_NORMAL, euler, tol=0.012, rot_tol=0.08, max_steps=100,
-                         what="before switch")  # fmt: skip
+    yield from ctx.servo(
+        contact + 0.06 * SWITCH_NORMAL, euler, tol=0.012, rot_tol=0.08, max_steps=100, what="before switch"
+    )
     yield from ctx.servo(contact, euler, speed=ctx.motion.slow_speed, tol=0.007, what="switch start")
-    yield from ctx.servo(contact + travel * direction, euler, speed=ctx.motion.slow_speed, tol=0.008,
-                         max_steps=50, what="switch", allow_timeout=True)  # fmt: skip
+    yield from ctx.servo(
+        contact + travel * direction,
+        euler,
+        speed=ctx.motion.slow_speed,
+        tol=0.008,
+        max_steps=50,
+        what="switch",
+        allow_timeout=True,
+    )
     tcp, _ = ctx.tcp()
     yield from ctx.servo(tcp + 0.07 * SWITCH_NORMAL, euler, tol=0.015, what="retreat", allow_timeout=True)

@@ -104,8 +104,12 @@ class SceneLayout:
         x = float(ctx.rng.uniform(lo[0] + 0.1, hi[0] - 0.1))
         ys = np.arange(lo[1], self.desk_front_y - edge_margin + 0.035, 0.005)
         start_z = np.full_like(ys, self.desk_top_z - 0.005)
-        tops = ray_hits(ctx, np.stack([np.full_like(ys, x), ys, start_z], axis=1),
-                        np.stack([np.full_like(ys, x), ys, np.zeros_like(ys)], axis=1), "drawer_link")[:, 2]  # fmt: skip
+        tops = ray_hits(
+            ctx,
+            np.stack([np.full_like(ys, x), ys, start_z], axis=1),
+            np.stack([np.full_like(ys, x), ys, np.zeros_like(ys)], axis=1),
+            "drawer_link",
+        )[:, 2]
         floor = np.isfinite(tops) & (tops < np.nanmin(tops) + 0.005)
         if floor.sum() < 2:
             raise ExpertFailureError("the drawer floor is not reachable in front of the desk")
@@ -114,7 +118,8 @@ class SceneLayout:
         return x, float(ctx.rng.uniform(y_lo, y_hi)), float(np.nanmin(tops))
 
     def above_drawer(self, ctx: SkillContext, block: str) -> bool:
-        """Block x within the drawer (with margin) and room behind it: pushed toward the robot it falls into the
+        """Block x within the drawer (with margin) and room behind it: pushed toward the robot it falls into
+        the
         open drawer (push_into_drawer)."""
         x = float(ctx.block_pose(block)[0][0])
         back_y = float(ctx.sim.client.getAABB(ctx.block_uids[block])[1][1])
@@ -123,7 +128,8 @@ class SceneLayout:
 
     # ---------------------------------------------------------------------------------------- desk
     def grasp_clear_of_cabinet(self, ctx: SkillContext, block: str, yaw: float) -> bool:
-        """The hand's footprint (0.24 m along the closing axis (sin yaw, -cos yaw), 0.1 m across) over the block
+        """The hand's footprint (0.24 m along the closing axis (sin yaw, -cos yaw), 0.1 m across) over the
+        block
         stays in front of the cabinet front (switch knob, door handle), which it would hit when descending."""
         pos, _ = ctx.block_pose(block)
         reach_y = 0.12 * abs(np.cos(yaw)) + 0.05 * abs(np.sin(yaw))
@@ -135,7 +141,8 @@ class SceneLayout:
         return float(np.linalg.norm(ctx.block_pose(block)[0][:2] - np.asarray(base[:2]))) <= reach
 
     def push_room(self, ctx: SkillContext, block: str, direction: float) -> bool:
-        """Room to push ``block`` 0.17 m along ``direction`` x: stays on the desk, misses button and blocks."""
+        """Room to push ``block`` 0.17 m along ``direction`` x: stays on the desk, misses button and
+        blocks."""
         pos, _ = ctx.block_pose(block)
         start_x, end_x = pos[0] - direction * 0.09, pos[0] + direction * 0.2
         base, _ = ctx.sim.client.getBasePositionAndOrientation(ctx.robot_uid)

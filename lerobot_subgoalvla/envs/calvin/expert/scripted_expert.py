@@ -1,9 +1,10 @@
 """Scripted expert for the 34 CALVIN tasks, from privileged simulator state (DESIGN.md, "expert" seam).
 
-``ScriptedExpert(sim, task, np_random)`` picks the script of the task's family (``expert_tasks``, ``expert_fixtures``) and yields one
-relative action per ``act()`` call; the caller steps the sim, so a data generator can record every frame. The
-script reads the state between steps (closed loop), so small physics deviations are corrected. ``done`` turns
-True when the script finished; ``failure`` then holds a reason if it gave up (e.g. a missed grasp).
+``ScriptedExpert(sim, task, np_random)`` picks the script of the task's family (``expert_tasks``,
+``expert_fixtures``) and yields one relative action per ``act()`` call; the caller steps the sim, so a data
+generator can record every frame. The script reads the state between steps (closed loop), so small physics
+deviations are corrected. ``done`` turns True when the script finished; ``failure`` then holds a reason if it
+gave up (e.g. a missed grasp).
 
 ``is_feasible(task, sim)`` says whether a task applies in the current state (the symbolic preconditions of
 CALVIN's chain generator, spec 4.1, plus geometric margins the expert needs, e.g. room to push a block).

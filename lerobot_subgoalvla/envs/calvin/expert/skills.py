@@ -2,8 +2,8 @@
 
 The expert drives the TCP with CALVIN's *relative* actions (spec 1.6): ``rel[0:3] = dpos / 0.02`` and
 ``rel[3:6] = wrap(deuler) / 0.05``, each clipped to [-1, 1], gripper exactly +1 (open) / -1 (close). The sim
-adds these deltas to a target pose it keeps (spec 3.5), while this module computes them from the *measured* TCP
-pose (``robot_obs[0:6]``), like CALVIN's recorded ``rel_actions``: a proportional controller toward the
+adds these deltas to a target pose it keeps (spec 3.5), while this module computes them from the *measured*
+TCP pose (``robot_obs[0:6]``), like CALVIN's recorded ``rel_actions``: a proportional controller toward the
 current waypoint, speed-capped so that demonstrations look like teleoperation rather than jumps.
 
 Skills are Python generators that yield one (7,) action per control step and read the simulator's state
@@ -207,8 +207,8 @@ class SkillContext:
         more than 8 cm of x with an end closer to the cabinet than ``front_y`` goes back, across, then in."""
         tcp, tcp_euler = self.tcp()
         if abs(pos[0] - tcp[0]) > 0.08 and max(tcp[1], pos[1]) > front_y:
-            # Via points keep the current orientation (a tilted wrist close to the robot base is hard to reach)
-            # and are pass-through points: coming within 3 cm, or 40 steps, is enough.
+            # Via points keep the current orientation (a tilted wrist close to the robot base is hard to
+            # reach) and are pass-through points: coming within 3 cm, or 40 steps, is enough.
             z = max(tcp[2], pos[2])
             if tcp[1] > front_y:
                 yield from self.servo(np.array([tcp[0], front_y, z]), tcp_euler, tol=0.03, rot_tol=0.3,

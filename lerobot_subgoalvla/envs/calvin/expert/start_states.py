@@ -1,9 +1,9 @@
 """Random valid start states for each CALVIN task (preconditions of spec 4.1, placements of spec 3.3).
 
 ``sample_start_state(task, sim, np_random)`` resets ``sim`` into a random state in which ``task`` applies and
-leaves it there, returning ``(robot_obs, scene_obs)``. Blocks are placed like CALVIN's random reset (uniform in
-a surface box of ``sim.scene.surfaces``, yaw U(-pi, pi), no block-block contact), doors and lights are drawn
-per task (e.g. ``close_drawer`` gets an open drawer). Tasks that start from a held or stacked block are
+leaves it there, returning ``(robot_obs, scene_obs)``. Blocks are placed like CALVIN's random reset (uniform
+in a surface box of ``sim.scene.surfaces``, yaw U(-pi, pi), no block-block contact), doors and lights are
+drawn per task (e.g. ``close_drawer`` gets an open drawer). Tasks that start from a held or stacked block are
 composites: the state is *produced* by running the expert (``lift_X_block_table`` for place/stack, then
 ``stack_block`` for unstack), as in CALVIN's chains. The robot starts near CALVIN's evaluation pose (spec 4.2)
 with a small random TCP offset.
@@ -27,7 +27,8 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-#: Yaw band of blocks that the expert takes out of the cabinet or drawer (CALVIN's chains: pi/2 +- pi/8, spec 4.2).
+#: Yaw band of blocks that the expert takes out of the cabinet or drawer (CALVIN's
+#: chains: pi/2 +- pi/8, spec 4.2).
 CABINET_YAW = (np.pi / 2 - np.pi / 8, np.pi / 2 + np.pi / 8)
 SETTLE_STEPS = 4
 

@@ -2,15 +2,16 @@
 
 Clean-room re-implementation of calvin_env ``envs/tasks.py`` + ``conf/tasks/new_playtable_tasks.yaml``
 (calvin-spec.md sections 2.1-2.3; identical in calvin_env ``1431a46`` and ``797142c``). Every predicate,
-threshold and strict/non-strict comparison is CALVIN's, quirks included, because benchmark numbers depend on them:
+threshold and strict/non-strict comparison is CALVIN's, quirks included, because benchmark numbers depend on
+them:
 
 - ``rotate`` measures the world-frame delta rotation ``R_end * R_start^-1`` as SciPy ``as_euler("xyz",
   degrees=True)``; the block may move at most 0.1 m and must rest on something other than the gripper.
 - ``place`` only fires when the block was already held in the air (touching only the robot) at the start of
   the subtask, and the robot touched exactly that one body.
-- ``push_into`` intends "the robot touches the block neither at start nor at end", but CALVIN compares the robot
-  uid with a set of ``(body, link)`` tuples, so that test is a no-op: robot contact at the end is allowed (at the
-  start it is excluded by requiring exactly one contact, the table's base).
+- ``push_into`` intends "the robot touches the block neither at start nor at end", but CALVIN compares the
+  robot uid with a set of ``(body, link)`` tuples, so that test is a no-op: robot contact at the end is
+  allowed (at the start it is excluded by requiring exactly one contact, the table's base).
 
 Inputs are the info dicts of ``CalvinSimulation.get_info()`` (spec 2.1). A contact tuple ``c`` is one entry of
 pybullet's ``getContactPoints``: ``c[2]`` is the other body's uid, ``c[4]`` the other body's link index.
@@ -112,7 +113,8 @@ def rotate(
 
 
 def push(start: Info, end: Info, *, block: str, dx: float) -> bool:
-    """Block slid along world x by more than ``dx`` (sign = direction) on the same support, spec 2.2 ``push``."""
+    """Block slid along world x by more than ``dx`` (sign = direction) on the same support, spec 2.2
+    ``push``."""
     s, e = _block(start, block), _block(end, block)
     robot = _robot_uid(start)
     start_support = {pair for pair in _contact_links(s["contacts"]) if pair[0] != robot}
@@ -166,7 +168,8 @@ def _block_uids(info: Info) -> set[int]:
 
 
 def stack(start: Info, end: Info, *, max_vel: float = 1.0) -> bool:
-    """Some block that touched no block now rests only on blocks, nearly at rest (end velocities < max_vel)."""
+    """Some block that touched no block now rests only on blocks, nearly at rest (end velocities <
+    max_vel)."""
     blocks = _block_uids(start)
     for name in _lookup(start, "scene_info", "movable_objects"):
         s, e = _block(start, name), _block(end, name)
@@ -255,10 +258,18 @@ def _task_table() -> dict[str, TaskSpec]:
         ("close_drawer", move_door, {"joint": "base__drawer", "threshold": -0.12}),
     ]
     for color in ("red", "blue", "pink"):
-        for surface, dz, link in (("table", 0.05, "base_link"), ("slider", 0.03, "plank_link"),
-                                  ("drawer", 0.05, "drawer_link")):  # fmt: skip
-            rows.append((f"lift_{color}_block_{surface}", lift,
-                         {"block": f"block_{color}", "dz": dz, "surface_link": link}))  # fmt: skip
+        for surface, dz, link in (
+            ("table", 0.05, "base_link"),
+            ("slider", 0.03, "plank_link"),
+            ("drawer", 0.05, "drawer_link"),
+        ):
+            rows.append(
+                (
+                    f"lift_{color}_block_{surface}",
+                    lift,
+                    {"block": f"block_{color}", "dz": dz, "surface_link": link},
+                )
+            )
     rows += [
         ("place_in_slider", place, {"dest_link": "plank_link"}),
         ("place_in_drawer", place, {"dest_link": "drawer_link"}),
@@ -285,8 +296,9 @@ TASK_SPECS: Mapping[str, TaskSpec] = MappingProxyType(_task_table())
 class TaskOracle:
     """Decides which CALVIN tasks were completed between a subtask's start info and the current info.
 
-    Mirrors calvin_env's ``Tasks.get_task_info`` / ``get_task_info_for_set`` (spec 2.2). In the LH-MTLC rollout
-    a subtask succeeds at the first step where ``is_completed(task, start_info, info)`` is true (spec 4.3).
+    Mirrors calvin_env's ``Tasks.get_task_info`` / ``get_task_info_for_set`` (spec 2.2). In the LH-MTLC
+    rollout a subtask succeeds at the first step where ``is_completed(task, start_info, info)`` is true (spec
+    4.3).
     """
 
     @property

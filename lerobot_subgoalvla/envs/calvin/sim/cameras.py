@@ -2,8 +2,8 @@
 
 | camera  | default size | vertical fov | near / far | pose |
 |---------|--------------|--------------|------------|------|
-| static  | 200 x 200    | 10 deg       | 0.01 / 10  | fixed eye/target/up of ``conf/cameras/cameras/static.yaml`` |
-| gripper | 84 x 84      | 75 deg       | 0.01 / 2   | eye = camera frame origin, target = eye + frame y axis, up = -(frame z axis) |
+| static  | 200 x 200    | 10 deg       | 0.01 / 10  | fixed, from ``conf/cameras/cameras/static.yaml`` |
+| gripper | 84 x 84      | 75 deg       | 0.01 / 2   | camera frame: eye = origin, target = eye + y, up = -z |
 
 CALVIN rendered its dataset with the EGL hardware renderer; TinyRenderer (``ER_TINY_RENDERER``) output differs
 slightly (CALVIN README FAQ). No custom lights or shadows, as CALVIN. Images are RGB uint8 (H, W, 3).

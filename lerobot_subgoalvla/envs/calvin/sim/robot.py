@@ -1,17 +1,20 @@
-"""Franka Panda controlled by inverse kinematics to a TCP pose, as CALVIN's ``Robot`` (calvin-spec section 3.5).
+"""Franka Panda controlled by inverse kinematics to a TCP pose, as CALVIN's ``Robot`` (calvin-spec section
+3.5).
 
 Two URDFs, one behaviour:
 
 * ``calvin_A..D``: CALVIN's ``franka_panda/panda_longer_finger.urdf`` from the user's calvin_env directory:
-  TCP = link 15 ``tcp`` (hand + 0.14 m along the hand z axis), gripper camera = link 14, fingers = joints 9, 11.
-* ``procedural``: pybullet's bundled ``franka_panda/panda.urdf`` (ships inside the pybullet wheel). Its fingers are
-  shorter than CALVIN's, so the TCP is its ``panda_grasptarget`` link 11 = hand + 0.105 m along z, the point
-  between the finger tips; the gripper camera has no link there and is placed at CALVIN's offset from the hand
-  (hand + (-0.1, 0, 0), rpy (1.3, 0, -1.57)). Fingers = joints 9, 10. The finger contact parameters of CALVIN's
-  URDF (lateral friction 1, spinning 0.1, stiffness 30000, damping 1000, friction anchor) are applied by code.
-  Its visual meshes (~100k triangles) are replaced by its own collision meshes (~3.5k): TinyRenderer's cost grows
-  with the triangle count, and this makes the static camera about 15 ms (~30 %) cheaper per frame
-  (``benchmarks/env_benchmark.py``); the arm looks faceted, which no CALVIN data depends on.
+  TCP = link 15 ``tcp`` (hand + 0.14 m along the hand z axis), gripper camera = link 14, fingers = joints 9,
+  11.
+* ``procedural``: pybullet's bundled ``franka_panda/panda.urdf`` (ships inside the pybullet wheel). Its
+  fingers are shorter than CALVIN's, so the TCP is its ``panda_grasptarget`` link 11 = hand + 0.105 m along z,
+  the point between the finger tips; the gripper camera has no link there and is placed at CALVIN's offset
+  from the hand (hand + (-0.1, 0, 0), rpy (1.3, 0, -1.57)). Fingers = joints 9, 10. The finger contact
+  parameters of CALVIN's URDF (lateral friction 1, spinning 0.1, stiffness 30000, damping 1000, friction
+  anchor) are applied by code. Its visual meshes (~100k triangles) are replaced by its own collision meshes
+  (~3.5k): TinyRenderer's cost grows with the triangle count, and this makes the static camera about 15 ms
+  (~30 %) cheaper per frame (``benchmarks/env_benchmark.py``); the arm looks faceted, which no CALVIN data
+  depends on.
 
 Arm joints 0-6 and the observation layout (robot_obs, spec 1.4) are the same for both.
 
@@ -19,11 +22,11 @@ Action semantics (spec 1.6, 3.5):
 
 * ``relative`` (default): ``a[:6]`` is clipped to [-1, 1]; the stored *target* pose (reset to the measured TCP
   pose at every reset, never re-synced afterwards, so saturated commands wind up exactly as in CALVIN) gets
-  ``a[0:3] * 0.02`` m and ``a[3:6] * 0.05`` rad added; the euler target is converted to a quaternion and solved
-  by IK.
+  ``a[0:3] * 0.02`` m and ``a[3:6] * 0.05`` rad added; the euler target is converted to a quaternion and
+  solved by IK.
 * ``absolute``: ``a[0:3]`` TCP position (m), ``a[3:6]`` TCP euler (rad); the target is set to it.
-* Gripper ``a[6]``: CALVIN asserts exactly +-1; like the calvin_agent wrapper we binarise ``> 0 -> +1 (open)``,
-  else ``-1 (close)``. Non-finite values or a shape other than (7,) raise ``ValueError``.
+* Gripper ``a[6]``: CALVIN asserts exactly +-1; like the calvin_agent wrapper we binarise ``> 0 -> +1
+  (open)``, else ``-1 (close)``. Non-finite values or a shape other than (7,) raise ``ValueError``.
 """
 
 from __future__ import annotations
@@ -89,12 +92,14 @@ def procedural_robot_spec() -> RobotSpec:
 
 
 def calvin_robot_spec(data_dir: Path) -> RobotSpec:
-    """CALVIN's ``panda_longer_finger.urdf``: TCP link 15, gripper camera link 14, fingers 9 and 11 (spec 3.5)."""
+    """CALVIN's ``panda_longer_finger.urdf``: TCP link 15, gripper camera link 14, fingers 9 and 11 (spec
+    3.5)."""
     return RobotSpec(data_dir / "franka_panda" / "panda_longer_finger.urdf", 15, (9, 11), 14, False)
 
 
 def _low_poly_urdf(urdf: Path) -> str:
-    """The URDF text with every mesh taken from ``meshes/collision`` by absolute path (see the module docstring)."""
+    """The URDF text with every mesh taken from ``meshes/collision`` by absolute path (see the module
+    docstring)."""
     collision_dir = (urdf.parent / "meshes" / "collision").as_posix() + "/"
     text = urdf.read_text()
     for prefix in ("package://meshes/visual/", "package://meshes/collision/"):
@@ -136,7 +141,8 @@ class PandaRobot:
         self._rest_pose: list[float] = []
 
     def load(self) -> None:
-        """Load the URDF (body uid 0 in a fresh world), the visual base cylinder and the finger gear (spec 3.1)."""
+        """Load the URDF (body uid 0 in a fresh world), the visual base cylinder and the finger gear (spec
+        3.1)."""
         c = self.client
         if self.spec.low_poly_visuals:
             with tempfile.TemporaryDirectory(prefix="subgoalvla_panda_") as tmp:
@@ -179,8 +185,8 @@ class PandaRobot:
     def reset(self, robot_obs: np.ndarray | None = None) -> None:
         """Set joints from ``robot_obs[7:14]`` and fingers from ``robot_obs[6] / 2`` (spec 3.8 step 2).
 
-        ``robot_obs[0:6]`` and ``robot_obs[14]`` are ignored, as in CALVIN: the stored gripper command keeps its
-        value from before the reset. Without ``robot_obs`` the default arm pose with open fingers is used.
+        ``robot_obs[0:6]`` and ``robot_obs[14]`` are ignored, as in CALVIN: the stored gripper command keeps
+        its value from before the reset. Without ``robot_obs`` the default arm pose with open fingers is used.
         """
         if robot_obs is None:
             arm, finger = np.array(DEFAULT_ARM_POSE), GRIPPER_OPEN
@@ -219,7 +225,8 @@ class PandaRobot:
         return [s[0] for s in self.client.getJointStates(self.uid, list(ARM_JOINTS))]
 
     def observation(self) -> np.ndarray:
-        """robot_obs (15,) float64: TCP pos, TCP euler, gripper width, 7 joints, last gripper action (spec 1.4)."""
+        """robot_obs (15,) float64: TCP pos, TCP euler, gripper width, 7 joints, last gripper action (spec
+        1.4)."""
         pos, orn = self.tcp_pose()
         euler = self.client.getEulerFromQuaternion(orn)
         return np.array(

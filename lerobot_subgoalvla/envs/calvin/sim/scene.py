@@ -1,20 +1,23 @@
-"""The play-table scene: blocks, table (doors, button + LED, switch + lightbulb) and plane (calvin-spec 3.1-3.4, 3.8).
+"""The play-table scene: blocks, table (doors, button + LED, switch + lightbulb) and plane (calvin-spec
+3.1-3.4, 3.8).
 
-One code path for every :class:`~.assets.SceneSource`: the procedural desk and CALVIN's tables A-D are both one
-multi-link body with CALVIN's joint names and link indices, found here by name.
+One code path for every :class:`~.assets.SceneSource`: the procedural desk and CALVIN's tables A-D are both
+one multi-link body with CALVIN's joint names and link indices, found here by name.
 
 Logic run once per control step after physics (spec 3.2), as calvin_env ``797142c``:
 
-* button ``base__button``: pressed = joint > (lower + upper) / 2; each rising edge (not pressed at the previous
-  control step, pressed now) toggles the button state and the LED follows;
+* button ``base__button``: pressed = joint > (lower + upper) / 2; each rising edge (not pressed at the
+  previous control step, pressed now) toggles the button state and the LED follows;
 * switch ``base__switch``: pressed = joint > (lower + upper) / 2; the switch state follows the level and the
   lightbulb changes only when the switch state changes;
 * lights colour their link: LED green (0, 1, 0, 1), lightbulb yellow (1, 1, 0, 1), white when off.
 
-Reset from ``scene_obs`` (spec 3.8, the fixed ``797142c`` order): slide, drawer; lights <- [4], [5]; button joint
-<- [2] and button state := LED state; switch joint <- [3] and switch state := off; blocks <- pose. One deliberate
-difference: the button's "pressed at the previous step" memory is set from the reset joint value (CALVIN keeps it
-from the previous episode, so a reset could fake or swallow a rising edge). Without ``scene_obs``: joints 0,
+Reset from ``scene_obs`` (spec 3.8, the fixed ``797142c`` order): slide, drawer; lights <- [4], [5]; button
+joint <- [2] and button state := LED state; switch joint <- [3] and switch state := off; blocks <- pose. One
+deliberate
+difference: the button's "pressed at the previous step" memory is set from the reset joint value (CALVIN keeps
+it from the previous episode, so a reset could fake or swallow a rising edge). Without ``scene_obs``: joints
+0,
 lights off and random block placement (spec 3.3).
 """
 
@@ -144,7 +147,8 @@ class Scene:
         )
 
     def _resolve_points(self) -> None:
-        """Turn the source's world-aligned point offsets into link-local points (joints are at 0 after loading)."""
+        """Turn the source's world-aligned point offsets into link-local points (joints are at 0 after
+        loading)."""
         c = self.client
         for name, (link_name, offset) in self.source.points.items():
             link = self.links[link_name]
@@ -165,7 +169,8 @@ class Scene:
         return tuple(self._local_points)
 
     def handle_position(self, name: str) -> np.ndarray:
-        """World position (3,) of a named point that moves with its link: ``drawer_handle`` (centre of the bar),
+        """World position (3,) of a named point that moves with its link: ``drawer_handle`` (centre of the
+        bar),
         ``slide_handle``, ``button_top``, ``switch_lever``, ``led``, ``lightbulb``."""
         if name not in self._local_points:
             raise ValueError(f"unknown point {name!r}; known: {self.point_names}")
@@ -215,7 +220,8 @@ class Scene:
                 c.resetBaseVelocity(uid, (0, 0, 0), (0, 0, 0))
 
     def _place_blocks_randomly(self, rng: np.random.Generator) -> None:
-        """Each block uniformly in a uniformly chosen surface box, yaw U(-pi, pi); resample until no block touches
+        """Each block uniformly in a uniformly chosen surface box, yaw U(-pi, pi); resample until no block
+        touches
         another (spec 3.3: up to 1000 tries, one physics step each)."""
         c = self.client
         names = list(self.surfaces)
@@ -258,7 +264,8 @@ class Scene:
 
     # ------------------------------------------------------------------ observation / info
     def observation(self) -> np.ndarray:
-        """scene_obs (24,) float64 (spec 1.5): slide, drawer, button, switch, lightbulb, LED, 3 x block pose."""
+        """scene_obs (24,) float64 (spec 1.5): slide, drawer, button, switch, lightbulb, LED, 3 x block
+        pose."""
         c = self.client
         values = [
             self.joint_state("base__slide"),

@@ -1,16 +1,16 @@
 """``CalvinSimulation``: CALVIN's play-table simulator on its own pybullet client (calvin-spec section 3).
 
-One instance = one ``BulletClient`` in DIRECT mode (no global pybullet connection), so several simulations live
-side by side in one process (vector envs, expert + evaluation). Physics as CALVIN (spec 3.7): gravity -9.8,
-``setTimeStep(1/240)``, default solver, ``deterministicOverlappingPairs = 1``, 8 physics sub-steps per 30 Hz control
-step. Loading order and body uids as spec 3.1: robot 0, visual base cylinder 1, blocks 2-4 (slot order), table 5,
-plane 6.
+One instance = one ``BulletClient`` in DIRECT mode (no global pybullet connection), so several simulations
+live side by side in one process (vector envs, expert + evaluation). Physics as CALVIN (spec 3.7): gravity
+-9.8, ``setTimeStep(1/240)``, default solver, ``deterministicOverlappingPairs = 1``, 8 physics sub-steps per
+30 Hz control step. Loading order and body uids as spec 3.1: robot 0, visual base cylinder 1, blocks 2-4 (slot
+order), table 5, plane 6.
 
-``step(action)`` = apply the action to the robot (IK + motor targets + gripper), 8 x ``stepSimulation``, then the
-button/switch/light logic. Unlike CALVIN's ``env.step`` it does not render: call :meth:`render_cameras` when images
-are needed (an expert can run without rendering). ``reset`` follows spec 3.8: scene first (see :mod:`.scene`),
-then the robot (joints from robot_obs[7:14], fingers from robot_obs[6] / 2, target pose := measured TCP), then one
-``stepSimulation`` without button/switch logic.
+``step(action)`` = apply the action to the robot (IK + motor targets + gripper), 8 x ``stepSimulation``, then
+the button/switch/light logic. Unlike CALVIN's ``env.step`` it does not render: call :meth:`render_cameras`
+when images are needed (an expert can run without rendering). ``reset`` follows spec 3.8: scene first (see
+:mod:`.scene`), then the robot (joints from robot_obs[7:14], fingers from robot_obs[6] / 2, target pose :=
+measured TCP), then one ``stepSimulation`` without button/switch logic.
 
 Example:
     >>> sim = CalvinSimulation("procedural", cameras=False)
@@ -116,7 +116,8 @@ class CalvinSimulation:
         """Reset the scene and the robot (spec 3.8).
 
         Args:
-            robot_obs: (15,) state to restore (only [6] and [7:14] are used); ``None`` = default arm pose, open.
+            robot_obs: (15,) state to restore (only [6] and [7:14] are used); ``None`` = default arm pose,
+            open.
             scene_obs: (24,) state to restore; ``None`` = doors closed, lights off, random blocks (needs
                 ``np_random``).
             np_random: Generator for the random block placement (the caller's seeded ``np_random``).
