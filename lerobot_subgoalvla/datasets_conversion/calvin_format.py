@@ -16,7 +16,6 @@ Dimension legend:
 
 from __future__ import annotations
 
-import logging
 import os
 import tempfile
 import zipfile
@@ -27,8 +26,6 @@ from zlib import error as zlib_error
 
 import numpy as np
 import yaml
-
-logger = logging.getLogger(__name__)
 
 SPLITS: tuple[str, ...] = ("training", "validation")
 EPISODE_IDS_FILE = "ep_start_end_ids.npy"

@@ -13,7 +13,6 @@ Dimension legend:
 
 from __future__ import annotations
 
-import logging
 import shutil
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -34,8 +33,6 @@ from lerobot_subgoalvla.datasets_conversion.calvin_quirks import (
     canonicalize_scene_obs,
 )
 from lerobot_subgoalvla.datasets_conversion.subgoal_traces import state_history, subgoal_traces
-
-logger = logging.getLogger(__name__)
 
 STATIC_KEY = "observation.images.static"
 GRIPPER_KEY = "observation.images.gripper"

@@ -18,7 +18,6 @@ Dimension legend:
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,8 +31,6 @@ from lerobot_subgoalvla.datasets_conversion.lerobot_parts import (
     ConversionOptions,
     episode_arrays,
 )
-
-logger = logging.getLogger(__name__)
 
 #: Mean absolute pixel error (in [0, 1]) accepted for AV1 (crf 30) frames;
 #: measured ~0.01 on CALVIN-like renders.

@@ -97,29 +97,13 @@ class CalvinEnv(gym.Env):
         render_mode: str = "rgb_array",
         chains: Mapping[int, calvin_chains.Chain] | None = None,
     ) -> None:
-        if task != LH_MTLC and task not in TASK_NAMES:
-            raise ValueError(f"Unknown CALVIN env task {task!r}; valid: {LH_MTLC!r}, {', '.join(TASK_NAMES)}")
-        if scene not in SCENES:
-            raise ValueError(f"Unknown CALVIN scene {scene!r}; valid: {', '.join(SCENES)}")
-        if action_mode not in ACTION_MODES:
-            raise ValueError(f"Unknown action_mode {action_mode!r}; valid: {', '.join(ACTION_MODES)}")
-        if render_mode != "rgb_array":
-            raise ValueError(f"Unknown render_mode {render_mode!r}; CalvinEnv renders only 'rgb_array'")
-        max_stop = NUM_EVAL_CHAINS if chains is None else max(chains, default=-1) + 1
-        if task == LH_MTLC and not 0 <= chain_start < chain_stop <= max_stop:
-            raise ValueError(
-                f"Chain range [{chain_start}, {chain_stop}) is not valid; need 0 <= start < stop <= "
-                f"{max_stop}"
-            )
-        if episode_length < 1:
-            raise ValueError(f"episode_length={episode_length} must be >= 1")
+        _check_arguments(
+            task, scene, action_mode, render_mode, episode_length, chain_start, chain_stop, chains
+        )
         self.task = task
         self.scene = scene
         self.assets_dir = assets_dir
         self.chain_ids = range(chain_start, chain_stop)
-        if chains is not None and set(self.chain_ids) - set(chains):
-            missing = sorted(set(self.chain_ids) - set(chains))[:5]
-            raise ValueError(f"chains lacks ids {missing} of the range [{chain_start}, {chain_stop})")
         self._chains = None if chains is None else {cid: chains[cid] for cid in self.chain_ids}
         self.episode_length = episode_length
         self.static_size = static_size
@@ -333,6 +317,37 @@ class CalvinEnv(gym.Env):
             subtask_steps=tuple(self._steps_per_subtask),
         )
         calvin_chains.append_episode_result(self.results_path, record)
+
+
+def _check_arguments(
+    task: str,
+    scene: str,
+    action_mode: str,
+    render_mode: str,
+    episode_length: int,
+    chain_start: int,
+    chain_stop: int,
+    chains: Mapping[int, calvin_chains.Chain] | None,
+) -> None:
+    """Reject bad ``CalvinEnv`` arguments with one line naming the value and what is allowed."""
+    if task != LH_MTLC and task not in TASK_NAMES:
+        raise ValueError(f"Unknown CALVIN env task {task!r}; valid: {LH_MTLC!r}, {', '.join(TASK_NAMES)}")
+    if scene not in SCENES:
+        raise ValueError(f"Unknown CALVIN scene {scene!r}; valid: {', '.join(SCENES)}")
+    if action_mode not in ACTION_MODES:
+        raise ValueError(f"Unknown action_mode {action_mode!r}; valid: {', '.join(ACTION_MODES)}")
+    if render_mode != "rgb_array":
+        raise ValueError(f"Unknown render_mode {render_mode!r}; CalvinEnv renders only 'rgb_array'")
+    max_stop = NUM_EVAL_CHAINS if chains is None else max(chains, default=-1) + 1
+    if task == LH_MTLC and not 0 <= chain_start < chain_stop <= max_stop:
+        raise ValueError(
+            f"Chain range [{chain_start}, {chain_stop}) is not valid; need 0 <= start < stop <= {max_stop}"
+        )
+    if episode_length < 1:
+        raise ValueError(f"episode_length={episode_length} must be >= 1")
+    if chains is not None and set(range(chain_start, chain_stop)) - set(chains):
+        missing = sorted(set(range(chain_start, chain_stop)) - set(chains))[:5]
+        raise ValueError(f"chains lacks ids {missing} of the range [{chain_start}, {chain_stop})")
 
 
 @functools.cache

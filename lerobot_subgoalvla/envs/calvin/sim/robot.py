@@ -31,7 +31,6 @@ Action semantics (spec 1.6, 3.5):
 
 from __future__ import annotations
 
-import logging
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,8 +40,6 @@ import numpy as np
 import pybullet
 import pybullet_data
 from pybullet_utils.bullet_client import BulletClient
-
-logger = logging.getLogger(__name__)
 
 ActionMode = Literal["relative", "absolute"]
 

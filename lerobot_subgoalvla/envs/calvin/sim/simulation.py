@@ -22,7 +22,6 @@ Example:
 
 from __future__ import annotations
 
-import logging
 import weakref
 from pathlib import Path
 
@@ -34,8 +33,6 @@ from lerobot_subgoalvla.envs.calvin.sim.assets import load_scene_source
 from lerobot_subgoalvla.envs.calvin.sim.cameras import Cameras
 from lerobot_subgoalvla.envs.calvin.sim.robot import ActionMode, PandaRobot
 from lerobot_subgoalvla.envs.calvin.sim.scene import Scene
-
-logger = logging.getLogger(__name__)
 
 PHYSICS_HZ = 240
 CONTROL_HZ = 30
