@@ -62,11 +62,11 @@ def _scene_obs() -> np.ndarray:
     return obs
 
 
-def measure(scene: str, assets_dir: Path | None, steps: int) -> dict[str, float]:
+def measure(scene: str, assets_dir: Path | None, steps: int, renderer: str = "tiny") -> dict[str, float]:
     """Median CPU ms per control step for physics and rendering, over ``steps`` steps of a smooth random
     walk."""
     rng = np.random.default_rng(0)
-    with CalvinSimulation(scene, assets_dir=assets_dir) as sim:
+    with CalvinSimulation(scene, assets_dir=assets_dir, renderer=renderer) as sim:
         sim.reset(robot_obs=EVAL_ROBOT_OBS, scene_obs=_scene_obs())
         physics, static, gripper = [], [], []
         action = np.zeros(7)
@@ -126,7 +126,13 @@ def main() -> None:
         "--typical-length", type=float, default=3.0, help="completed subtasks per chain (typical)"
     )
     parser.add_argument("--typical-subtask-steps", type=int, default=90, help="steps of a completed subtask")
+    parser.add_argument(
+        "--renderers", nargs="+", default=["tiny", "egl"], choices=["tiny", "egl"], help="camera renderers"
+    )
     args = parser.parse_args()
+    # llvmpipe (Mesa's EGL on a CPU) renders in its own threads unless told not to: thread CPU time would
+    # miss them
+    os.environ.setdefault("LP_NUM_THREADS", "0")
     if args.core >= 0:
         os.sched_setaffinity(0, {args.core})
     assets = args.assets_dir or os.environ.get("CALVIN_ENV_ASSETS")
@@ -141,22 +147,26 @@ def main() -> None:
     )
     print(f"load average: {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores (timings scale with contention)")
     header = (
-        f"{'scene':<11} {'physics ms':>10} {'static ms':>9} {'gripper ms':>10} {'total ms':>9} "
+        f"{'scene':<11} {'renderer':<8} {'physics ms':>10} {'static ms':>9} {'gripper ms':>10} "
+        f"{'total ms':>9} "
         f"{'steps/s':>8} "
         f"{'phys-only/s':>11} {'render %':>8}"
     )
     print(header)
     print("-" * len(header))
     results = {}
-    for scene in scenes:
-        r = measure(scene, Path(assets) if assets else None, args.steps)
-        results[scene] = r
+    for scene, renderer in ((s, r) for s in scenes for r in args.renderers):
+        r = measure(scene, Path(assets) if assets else None, args.steps, renderer)
+        if renderer == args.renderers[0]:
+            results[scene] = r
         print(
-            f"{scene:<11} {r['physics_ms']:>10.2f} {r['static_ms']:>9.2f} {r['gripper_ms']:>10.2f} "
+            f"{scene:<11} {renderer:<8} {r['physics_ms']:>10.2f} {r['static_ms']:>9.2f} "
+            f"{r['gripper_ms']:>10.2f} "
             f"{r['total_ms']:>9.2f} "
             f"{r['steps_per_s']:>8.1f} {r['physics_only_steps_per_s']:>11.1f} "
             f"{100 * r['render_share']:>7.0f}%"
         )
+    print("reference   calvin_env scene D, TinyRenderer, one core of the same machine class: 13.9 steps/s")
     print()
     print(
         "LH-MTLC simulator wall time (1000 chains; upper bound 5 x 360 steps; typical "

@@ -54,6 +54,7 @@ from lerobot_subgoalvla.datasets_conversion.calvin_format import (
     write_statistics,
 )
 from lerobot_subgoalvla.datasets_conversion.calvin_quirks import block_order_of
+from lerobot_subgoalvla.envs.calvin.protocol import RENDERERS
 
 logger = logging.getLogger(__name__)
 
@@ -74,8 +75,11 @@ class GeneratorOptions:
     static_size: int = 200
     gripper_size: int = 84
     tasks: tuple[str, ...] = TASK_NAMES
+    renderer: str = "tiny"
 
     def __post_init__(self) -> None:
+        if self.renderer not in RENDERERS:
+            raise ValueError(f"--renderer={self.renderer!r} is not valid; use one of: {', '.join(RENDERERS)}")
         if not self.tasks:
             raise ValueError("--tasks needs at least one CALVIN task name")
         for task in self.tasks:
@@ -130,7 +134,9 @@ def generate_segment(job: SegmentJob) -> int:
     tmp = job.directory.with_suffix(".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     rng = np.random.default_rng(np.random.SeedSequence([opts.seed, job.index]))
-    sim = CalvinSimulation(opts.scene, opts.assets_dir, opts.static_size, opts.gripper_size)
+    sim = CalvinSimulation(
+        opts.scene, opts.assets_dir, opts.static_size, opts.gripper_size, renderer=opts.renderer
+    )
     try:
         slot_order = tuple(name.removeprefix("block_") for name in sim.block_names)
         if slot_order != block_order_of(opts.scene_name):
@@ -257,6 +263,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--max-steps-per-task", type=int, default=360)
     parser.add_argument("--static-size", type=int, default=200)
     parser.add_argument("--gripper-size", type=int, default=84)
+    parser.add_argument(
+        "--renderer",
+        choices=RENDERERS,
+        default="tiny",
+        help="camera renderer: tiny (pybullet's CPU TinyRenderer) or egl (OpenGL, as CALVIN's own data)",
+    )
     parser.add_argument(
         "--tasks",
         type=_task_list,

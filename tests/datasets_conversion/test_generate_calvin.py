@@ -153,3 +153,21 @@ def test_task_filter_limits_what_the_expert_plays(tmp_path: Path) -> None:
     assert len(tasks) > 0 and set(tasks) <= {"turn_on_led", "turn_off_led"}
     generate_calvin._check_options(tmp_path / "again" / ".segments", options)  # tuples round-trip via JSON
     generate_calvin._check_options(tmp_path / "again" / ".segments", options)
+
+
+def test_egl_renderer_generates_frames_like_calvins_data(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="--renderer='vulkan' is not valid; use one of: tiny, egl"):
+        GeneratorOptions(num_tasks=2, seed=0, renderer="vulkan")
+    args = generate_calvin.parse_args(
+        ["--output", "x", "--num-tasks", "1", "--seed", "0", "--renderer", "egl"]
+    )
+    assert args.renderer == "egl"
+    common = {"num_tasks": 1, "seed": 3, "val_fraction": 0.0, "tasks_per_segment": 1, "static_size": 32,
+              "gripper_size": 16, "tasks": ("turn_on_led",)}  # fmt: skip
+    frames = {}
+    for renderer in ("tiny", "egl"):
+        output = generate(tmp_path / renderer, GeneratorOptions(**common, renderer=renderer))
+        split = CalvinSplit(output["training"])
+        first = int(split.segments[0][0])
+        frames[renderer] = split.load_frames([first], keys=("rgb_static",))["rgb_static"][0].astype(float)
+    assert frames["egl"].std() > 5 and np.abs(frames["egl"] - frames["tiny"]).mean() > 1.0

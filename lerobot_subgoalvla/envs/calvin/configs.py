@@ -30,6 +30,7 @@ from lerobot_subgoalvla.envs.calvin.protocol import (
     CALVIN_EP_LEN,
     LH_MTLC,
     NUM_EVAL_CHAINS,
+    RENDERERS,
     SCENES,
 )
 from lerobot_subgoalvla.envs.calvin.vector import SharedVectorEnvs, TaskView, make_frozen_env
@@ -76,6 +77,8 @@ class CalvinEnvConfig(EnvConfig):
         gripper_image_size: Side of the square gripper-camera image (CALVIN: 84).
         action_mode: ``"relative"`` (CALVIN's normalised rel_actions, Box(-1, 1)) or ``"absolute"``
             (tcp position, euler angles, gripper).
+        renderer: ``"tiny"`` (pybullet's CPU TinyRenderer, default) or ``"egl"`` (OpenGL through pybullet's
+            EGL plugin: how CALVIN rendered its dataset; a model trained on real CALVIN sees such images).
         results_path: If set, every finished chain episode appends one JSON line (chains.py's record) here;
             ``subgoalvla-calvin-report`` turns them into CALVIN's LH-1..5 table.
     """
@@ -90,6 +93,7 @@ class CalvinEnvConfig(EnvConfig):
     static_image_size: int = 200
     gripper_image_size: int = 84
     action_mode: str = "relative"
+    renderer: str = "tiny"
     results_path: str | None = None
     features: dict[str, PolicyFeature] = field(default_factory=_default_features)
     features_map: dict[str, str] = field(default_factory=_default_features_map)
@@ -119,6 +123,10 @@ class CalvinEnvConfig(EnvConfig):
             raise ValueError(
                 f"--env.action_mode={self.action_mode!r} is not valid; use one of: {', '.join(ACTION_MODES)}"
             )
+        if self.renderer not in RENDERERS:
+            raise ValueError(
+                f"--env.renderer={self.renderer!r} is not valid; use one of: {', '.join(RENDERERS)}"
+            )
         if self.fps != CALVIN_FPS:
             raise ValueError(f"--env.fps={self.fps} is not valid; CALVIN steps at {CALVIN_FPS} Hz")
         if not 0 <= self.chain_start < self.chain_stop <= NUM_EVAL_CHAINS:
@@ -147,6 +155,7 @@ class CalvinEnvConfig(EnvConfig):
             "static_size": self.static_image_size,
             "gripper_size": self.gripper_image_size,
             "action_mode": self.action_mode,
+            "renderer": self.renderer,
             "results_path": self.results_path,
         }
 

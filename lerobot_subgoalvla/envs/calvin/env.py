@@ -49,6 +49,7 @@ from lerobot_subgoalvla.envs.calvin.protocol import (
     NUM_EVAL_CHAINS,
     SCENES,
 )
+from lerobot_subgoalvla.envs.calvin.sim.cameras import check_renderer
 from lerobot_subgoalvla.envs.calvin.sim.scene import SCENE_OBS_DIM
 from lerobot_subgoalvla.envs.calvin.sim.simulation import ROBOT_OBS_DIM, CalvinSimulation
 from lerobot_subgoalvla.envs.calvin.vector import NEW_ROLLOUT_OPTION
@@ -77,6 +78,8 @@ class CalvinEnv(gym.Env):
         chains: The chains of the range by id. ``CalvinEnvConfig.create_envs`` passes them so that worker
             processes need not regenerate CALVIN's chain list; default: the official 1000 chains (spec 4.1),
             generated on first use (seconds of CPU, once per process).
+        renderer: ``"tiny"`` (CPU TinyRenderer) or ``"egl"`` (OpenGL, as CALVIN's data); the EGL context is
+            made with the simulator, at the first reset, so each worker process has its own.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": CALVIN_FPS}
@@ -96,7 +99,9 @@ class CalvinEnv(gym.Env):
         results_path: str | Path | None = None,
         render_mode: str = "rgb_array",
         chains: Mapping[int, calvin_chains.Chain] | None = None,
+        renderer: str = "tiny",
     ) -> None:
+        check_renderer(renderer)
         _check_arguments(
             task, scene, action_mode, render_mode, episode_length, chain_start, chain_stop, chains
         )
@@ -109,6 +114,7 @@ class CalvinEnv(gym.Env):
         self.static_size = static_size
         self.gripper_size = gripper_size
         self.action_mode = action_mode
+        self.renderer = renderer
         self.results_path = Path(results_path) if results_path is not None else None
         self.render_mode = render_mode
         self.metadata = {"render_modes": ["rgb_array"], "render_fps": CALVIN_FPS}
@@ -211,6 +217,7 @@ class CalvinEnv(gym.Env):
                 static_size=self.static_size,
                 gripper_size=self.gripper_size,
                 action_mode=self.action_mode,
+                renderer=self.renderer,
             )
         # CALVIN keeps the previous episode's gripper command across resets (spec 3.8), so robot_obs[14] of
         # the first frame would depend on episode order. Reset it to the start state's (open unless robot_obs

@@ -16,5 +16,7 @@ CHAIN_LENGTH = 5
 CALVIN_EP_LEN = 360
 SCENES: tuple[str, ...] = ("procedural", "calvin_A", "calvin_B", "calvin_C", "calvin_D")
 ACTION_MODES: tuple[str, ...] = ("relative", "absolute")
+#: Camera renderers: pybullet's CPU TinyRenderer, or OpenGL through the EGL plugin (what CALVIN's data used).
+RENDERERS: tuple[str, ...] = ("tiny", "egl")
 #: ``gymnasium.make(GYM_ID, task=..., ...)`` builds a ``CalvinEnv`` (registered by ``envs/calvin/__init__``).
 GYM_ID = "lerobot_subgoalvla/Calvin-v0"

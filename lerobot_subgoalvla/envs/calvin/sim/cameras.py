@@ -5,15 +5,26 @@
 | static  | 200 x 200    | 10 deg       | 0.01 / 10  | fixed, from ``conf/cameras/cameras/static.yaml`` |
 | gripper | 84 x 84      | 75 deg       | 0.01 / 2   | camera frame: eye = origin, target = eye + y, up = -z |
 
-CALVIN rendered its dataset with the EGL hardware renderer; TinyRenderer (``ER_TINY_RENDERER``) output differs
-slightly (CALVIN README FAQ). No custom lights or shadows, as CALVIN. Images are RGB uint8 (H, W, 3).
+Two renderers (``renderer=``): ``"tiny"``, pybullet's CPU TinyRenderer (``ER_TINY_RENDERER``), and ``"egl"``,
+OpenGL through pybullet's ``eglRenderer`` plugin (``ER_BULLET_HARDWARE_OPENGL``), which is how CALVIN rendered
+its dataset and evaluates. Their images differ (lighting, specular highlights; CALVIN README FAQ). EGL needs
+an EGL driver: NVIDIA's on a GPU (``EGL_VISIBLE_DEVICES`` picks the device), Mesa's llvmpipe on a CPU. The
+plugin must be loaded on a client before any body exists (``load_egl_plugin``); afterwards every image of that
+client uses it. No custom lights or shadows, as CALVIN. Images are RGB uint8 (H, W, 3).
 """
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 import pybullet
 from pybullet_utils.bullet_client import BulletClient
+
+from lerobot_subgoalvla.envs.calvin.protocol import RENDERERS
+from lerobot_subgoalvla.envs.calvin.sim.stdio import quiet_c_output
+
+_PYBULLET_RENDERER = {"tiny": pybullet.ER_TINY_RENDERER, "egl": pybullet.ER_BULLET_HARDWARE_OPENGL}
 
 STATIC_EYE = (2.871459009488717, -2.166602199425597, 2.555159848480571)
 STATIC_TARGET = (-0.026242351159453392, -0.0302329882979393, 0.3920000493526459)
@@ -22,19 +33,51 @@ STATIC_FOV, STATIC_NEAR, STATIC_FAR = 10.0, 0.01, 10.0
 GRIPPER_FOV, GRIPPER_NEAR, GRIPPER_FAR = 75.0, 0.01, 2.0
 
 
+def check_renderer(renderer: str) -> str:
+    """``renderer`` if it names one of ``RENDERERS``; ValueError naming the allowed values otherwise."""
+    if renderer not in RENDERERS:
+        raise ValueError(f"renderer={renderer!r} is not valid; use one of: {', '.join(RENDERERS)}")
+    return renderer
+
+
+def load_egl_plugin(client: BulletClient) -> int:
+    """Load pybullet's ``eglRenderer`` plugin on ``client`` (call it before the first body is loaded).
+
+    Returns the plugin id. Raises RuntimeError when the plugin or an EGL driver is missing.
+    """
+    spec = importlib.util.find_spec("eglRenderer")
+    if spec is None or spec.origin is None:
+        raise RuntimeError(
+            "renderer='egl': this pybullet build has no eglRenderer plugin; use renderer='tiny'"
+        )
+    with quiet_c_output():
+        plugin = client.loadPlugin(spec.origin, "_eglRendererPlugin")
+    if plugin < 0:
+        raise RuntimeError(
+            "renderer='egl': pybullet could not load its EGL plugin (no EGL driver? on Debian: apt-get "
+            "install libegl1 libegl-mesa0 libgl1-mesa-dri); use renderer='tiny'"
+        )
+    return plugin
+
+
 class Cameras:
     """Renders both cameras of one simulation.
 
     Args:
-        client: The simulation's BulletClient.
+        client: The simulation's BulletClient (with the EGL plugin loaded for ``renderer="egl"``).
         static_size: Width = height of the static image (CALVIN: 200).
         gripper_size: Width = height of the gripper image (CALVIN: 84).
+        renderer: ``"tiny"`` or ``"egl"`` (module docstring).
     """
 
-    def __init__(self, client: BulletClient, static_size: int = 200, gripper_size: int = 84) -> None:
+    def __init__(
+        self, client: BulletClient, static_size: int = 200, gripper_size: int = 84, renderer: str = "tiny"
+    ) -> None:
         for name, size in (("static_size", static_size), ("gripper_size", gripper_size)):
             if not isinstance(size, int) or size < 1:
                 raise ValueError(f"{name} must be a positive int, got {size!r}")
+        self.renderer = check_renderer(renderer)
+        self._egl_sizes_seen: set[int] = set()
         self.client = client
         self.static_size = static_size
         self.gripper_size = gripper_size
@@ -43,12 +86,16 @@ class Cameras:
         self._gripper_proj = client.computeProjectionMatrixFOV(GRIPPER_FOV, 1.0, GRIPPER_NEAR, GRIPPER_FAR)
 
     def _render(self, size: int, view: tuple[float, ...], proj: tuple[float, ...]) -> np.ndarray:
+        if self.renderer == "egl" and size not in self._egl_sizes_seen:
+            self._egl_sizes_seen.add(size)
+            with quiet_c_output():  # the plugin prints its GL vendor for each new framebuffer size
+                return self._render(size, view, proj)
         _, _, rgba, _, _ = self.client.getCameraImage(
             size,
             size,
             viewMatrix=view,
             projectionMatrix=proj,
-            renderer=pybullet.ER_TINY_RENDERER,
+            renderer=_PYBULLET_RENDERER[self.renderer],
             flags=pybullet.ER_NO_SEGMENTATION_MASK,
         )
         if not isinstance(rgba, np.ndarray):

@@ -203,13 +203,21 @@ class PandaRobot:
                 force=GRIPPER_FORCE,
                 maxVelocity=1,
             )
-        pos, orn = self.tcp_pose()
+        pos, orn = self.tcp_pose(current=True)
         self.target_pos = np.array(pos)
         self.target_orn = np.array(c.getEulerFromQuaternion(orn))
 
-    def tcp_pose(self) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
-        """World TCP position (m) and quaternion (x, y, z, w)."""
-        state = self.client.getLinkState(self.uid, self.spec.tcp_link, computeForwardKinematics=True)
+    def tcp_pose(
+        self, current: bool = False
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+        """World TCP position (m) and quaternion (x, y, z, w).
+
+        By default the pose CALVIN reports: ``getLinkState`` without ``computeForwardKinematics``, the link
+        transform pybullet cached at the start of the last physics sub-step, 1/240 s behind the joints
+        (about 1 mm while the arm moves; spec 3.5). ``current=True`` recomputes it from the joint positions,
+        as the control needs (the reset's target pose; after ``resetJointState`` both agree).
+        """
+        state = self.client.getLinkState(self.uid, self.spec.tcp_link, computeForwardKinematics=current)
         return state[0], state[1]
 
     def gripper_width(self) -> float:
@@ -245,13 +253,15 @@ class PandaRobot:
         }
 
     def camera_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        """World position and 3x3 rotation of the gripper camera frame (link 14 or hand + CALVIN's offset)."""
+        """World position and 3x3 rotation of the gripper camera frame (link 14 or hand + CALVIN's offset),
+        from the transform cached at the last physics sub-step, as CALVIN poses it."""
         c = self.client
         if self.spec.camera_link is not None:
-            state = c.getLinkState(self.uid, self.spec.camera_link, computeForwardKinematics=True)
+            # The cached transform, as CALVIN's gripper camera reads it (see tcp_pose).
+            state = c.getLinkState(self.uid, self.spec.camera_link)
             pos, orn = state[0], state[1]
         else:
-            hand = c.getLinkState(self.uid, HAND_LINK, computeForwardKinematics=True)
+            hand = c.getLinkState(self.uid, HAND_LINK)
             offset_pos, offset_rpy = CAMERA_FROM_HAND
             pos, orn = c.multiplyTransforms(
                 hand[4], hand[5], offset_pos, c.getQuaternionFromEuler(offset_rpy)

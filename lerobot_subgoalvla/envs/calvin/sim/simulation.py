@@ -2,9 +2,9 @@
 
 One instance = one ``BulletClient`` in DIRECT mode (no global pybullet connection), so several simulations
 live side by side in one process (vector envs, expert + evaluation). Physics as CALVIN (spec 3.7): gravity
--9.8, ``setTimeStep(1/240)``, default solver, ``deterministicOverlappingPairs = 1``, 8 physics sub-steps per
-30 Hz control step. Loading order and body uids as spec 3.1: robot 0, visual base cylinder 1, blocks 2-4 (slot
-order), table 5, plane 6.
+-9.8, ``setTimeStep(1/240)``, default solver, ``deterministicOverlappingPairs`` at Bullet's default 0 (what
+CALVIN ends up with, see ``__init__``), 8 physics sub-steps per 30 Hz control step. Loading order and body
+uids as spec 3.1: robot 0, visual base cylinder 1, blocks 2-4 (slot order), table 5, plane 6.
 
 ``step(action)`` = apply the action to the robot (IK + motor targets + gripper), 8 x ``stepSimulation``, then
 the button/switch/light logic. Unlike CALVIN's ``env.step`` it does not render: call :meth:`render_cameras`
@@ -30,9 +30,10 @@ import pybullet
 from pybullet_utils.bullet_client import BulletClient
 
 from lerobot_subgoalvla.envs.calvin.sim.assets import load_scene_source
-from lerobot_subgoalvla.envs.calvin.sim.cameras import Cameras
+from lerobot_subgoalvla.envs.calvin.sim.cameras import Cameras, check_renderer, load_egl_plugin
 from lerobot_subgoalvla.envs.calvin.sim.robot import ActionMode, PandaRobot
 from lerobot_subgoalvla.envs.calvin.sim.scene import Scene
+from lerobot_subgoalvla.envs.calvin.sim.stdio import quiet_c_output
 
 PHYSICS_HZ = 240
 CONTROL_HZ = 30
@@ -42,7 +43,8 @@ ROBOT_OBS_DIM = 15
 
 def _disconnect(client: BulletClient) -> None:
     if client._client >= 0:  # BulletClient sets it to -1 on disconnect
-        client.disconnect()
+        with quiet_c_output():  # the EGL plugin says goodbye on fd 1
+            client.disconnect()
 
 
 class CalvinSimulation:
@@ -56,6 +58,8 @@ class CalvinSimulation:
         cameras: Build the cameras; ``False`` makes :meth:`render_cameras` raise (physics-only use).
         action_mode: ``"relative"`` (CALVIN rel_actions, 7-d in [-1, 1]) or ``"absolute"`` (TCP pos, euler,
             gripper).
+        renderer: ``"tiny"`` (pybullet's CPU TinyRenderer) or ``"egl"`` (OpenGL via the EGL plugin, as
+            CALVIN's data; see :mod:`.cameras`).
 
     Attributes:
         client: The BulletClient (privileged access for the expert).
@@ -72,10 +76,13 @@ class CalvinSimulation:
         gripper_size: int = 84,
         cameras: bool = True,
         action_mode: ActionMode = "relative",
+        renderer: str = "tiny",
     ) -> None:
+        check_renderer(renderer)
         source = load_scene_source(scene, assets_dir)  # validates names and files before connecting
         self.scene_name = scene
-        self.client = BulletClient(connection_mode=pybullet.DIRECT)
+        with quiet_c_output():  # pybullet's "argv[0]=" on connect
+            self.client = BulletClient(connection_mode=pybullet.DIRECT)
         # Disconnect at garbage collection or interpreter exit, before pybullet itself is torn down.
         self._finalizer = weakref.finalize(self, _disconnect, self.client)
         try:
@@ -83,13 +90,17 @@ class CalvinSimulation:
             c.resetSimulation()
             c.setGravity(0, 0, -9.8)
             c.setTimeStep(1.0 / PHYSICS_HZ)
-            c.setPhysicsEngineParameter(deterministicOverlappingPairs=1)
+            if cameras and renderer == "egl":
+                load_egl_plugin(c)  # before the first body: loaded later it renders only the background
+            # No deterministicOverlappingPairs: calvin_env sets it to 1 in initialize_bullet, but its load()
+            # calls resetSimulation afterwards, which restores Bullet's default (0). CALVIN runs with 0, and
+            # contact-rich runs diverge when the flag differs (spec 3.7).
             self.robot = PandaRobot(c, source.robot, action_mode)
             self.robot.load()
             self.scene = Scene(c, source)
             self.scene.load()
             self.robot.reset()
-            self.cameras = Cameras(c, static_size, gripper_size) if cameras else None
+            self.cameras = Cameras(c, static_size, gripper_size, renderer) if cameras else None
         except Exception:
             self.close()
             raise
