@@ -49,6 +49,7 @@ from lerobot_subgoalvla.datasets_conversion.lerobot_parts import (
     merge_parts,
     write_part,
 )
+from lerobot_subgoalvla.datasets_conversion.output_paths import refuse_overlap
 
 if TYPE_CHECKING:
     from lerobot.datasets import LeRobotDataset
@@ -161,6 +162,10 @@ def convert_split(
     """
     from lerobot.datasets import LeRobotDataset
 
+    refuse_overlap(root, "--root", Path(split_dir), "the split folder")
+    refuse_overlap(
+        root.with_name(root.name + ".partial"), "--root (its .partial)", Path(split_dir), "the split"
+    )
     if resume and (root / "meta" / "info.json").is_file():  # finished earlier (maybe killed before clean-up)
         logger.info("%s is already complete; nothing to resume", root)
         shutil.rmtree(root.with_name(root.name + ".partial"), ignore_errors=True)
@@ -239,6 +244,7 @@ def convert(
     names = list(SPLITS) if split == "both" else [split]
     if split not in (*SPLITS, "both"):
         raise ValueError(f"--split must be training, validation or both, got {split!r}")
+    refuse_overlap(root, "--root", Path(src), "the CALVIN folder")  # before --overwrite deletes anything
     datasets = {}
     for name in names:
         target_root, target_id = (root / name, f"{repo_id}-{name}") if split == "both" else (root, repo_id)

@@ -54,6 +54,7 @@ from lerobot_subgoalvla.datasets_conversion.calvin_format import (
     write_statistics,
 )
 from lerobot_subgoalvla.datasets_conversion.calvin_quirks import block_order_of
+from lerobot_subgoalvla.datasets_conversion.output_paths import refuse_overlap
 from lerobot_subgoalvla.envs.calvin.protocol import RENDERERS
 
 logger = logging.getLogger(__name__)
@@ -215,13 +216,25 @@ def _check_options(segments_dir: Path, opts: GeneratorOptions) -> None:
     path.write_text(json.dumps(record, indent=2))
 
 
+#: Written into OUTPUT when a run finishes: the options that made the dataset.
+OPTIONS_RECORD = "generator_options.json"
+
+
 def generate(output: Path, opts: GeneratorOptions, workers: int = 1) -> dict[str, Path]:
     """Generate (or finish generating) ``OUTPUT/training`` and ``OUTPUT/validation``; returns their paths."""
     output = Path(output)
+    if opts.assets_dir is not None:
+        refuse_overlap(output, "--output", Path(opts.assets_dir), "the calvin_env clone (--assets-dir)")
     splits = [name for name in SPLITS if name == "training" or opts.val_fraction > 0]  # no empty validation
-    if all((output / name).is_dir() for name in splits):
-        raise FileExistsError(f"{output}: already holds a generated dataset; choose another --output")
     segments_dir = output / SEGMENTS_DIR
+    existing = [name for name in SPLITS if (output / name).exists()]
+    if existing and not segments_dir.is_dir():  # an unfinished run of ours keeps SEGMENTS_DIR to the very end
+        if (output / OPTIONS_RECORD).is_file():
+            raise FileExistsError(f"{output}: already holds a generated dataset; choose another --output")
+        raise FileExistsError(
+            f"{output}: already has {', '.join(f'{n}/' for n in existing)} from something else; "
+            "choose an empty --output"
+        )
     _check_options(segments_dir, opts)
     jobs = [
         SegmentJob(i, n, opts, segments_dir / f"segment-{i:06d}") for i, n in enumerate(opts.segment_tasks())
@@ -243,6 +256,7 @@ def generate(output: Path, opts: GeneratorOptions, workers: int = 1) -> dict[str
         selected = [job for job in jobs if (job.index in validation) == (name == "validation")]
         if not (output / name).is_dir():
             _assemble_split(output, name, selected, opts)
+    (output / OPTIONS_RECORD).write_text(json.dumps(asdict(opts), indent=2))  # marks the dataset as ours
     shutil.rmtree(segments_dir)
     return {name: output / name for name in splits}
 

@@ -144,6 +144,27 @@ def test_cli_errors(source: Path, tmp_path: Path, caplog: pytest.LogCaptureFixtu
     assert "HF_HUB_OFFLINE" in message and not (tmp_path / "o2").exists()
 
 
+def _tree(root: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("where", ["the source", "inside the source", "a parent of the source"])
+def test_overwrite_never_deletes_the_source(
+    source: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture, where: str
+) -> None:
+    """A --root that is, is inside, or contains SRC is refused before anything is touched."""
+    import shutil
+
+    src = tmp_path / "copy" / "calvin"
+    shutil.copytree(source, src)
+    before = _tree(tmp_path / "copy")
+    root = {"the source": src, "inside the source": src / "out", "a parent of the source": src.parent}[where]
+    base = ["--repo-id", "local/x", "--image-format", "image", "--overwrite", "--split", "both"]
+    message = _run_main([str(src), *base, "--root", str(root)], caplog)
+    assert "--root" in message and "choose an --root outside" in message
+    assert _tree(tmp_path / "copy") == before
+
+
 def test_corrupt_frame_mid_conversion_leaves_nothing_complete(tmp_path: Path, caplog) -> None:
     src = tmp_path / "src"
     write_native_split(src / "training", [(0, 19), (30, 49)], (), None, static=64, gripper=64)

@@ -171,3 +171,13 @@ def test_egl_renderer_generates_frames_like_calvins_data(tmp_path: Path) -> None
         first = int(split.segments[0][0])
         frames[renderer] = split.load_frames([first], keys=("rgb_static",))["rgb_static"][0].astype(float)
     assert frames["egl"].std() > 5 and np.abs(frames["egl"] - frames["tiny"]).mean() > 1.0
+
+
+def test_an_unrelated_split_folder_in_output_is_refused(tmp_path: Path) -> None:
+    (tmp_path / "out" / "training").mkdir(parents=True)
+    (tmp_path / "out" / "training" / "mine.txt").write_text("not generated")
+    options = GeneratorOptions(num_tasks=1, seed=0, val_fraction=0.0, tasks_per_segment=1, static_size=16,
+                               gripper_size=16, tasks=("turn_on_led",))  # fmt: skip
+    with pytest.raises(FileExistsError, match="already has training/ from something else"):
+        generate(tmp_path / "out", options)
+    assert (tmp_path / "out" / "training" / "mine.txt").read_text() == "not generated"
