@@ -13,6 +13,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.envs.utils import env_to_policy_features
 
 from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS, TASK_NAMES
+from lerobot_subgoalvla.config_error import ConfigError
 from lerobot_subgoalvla.envs.calvin.configs import CalvinEnvConfig
 from lerobot_subgoalvla.envs.calvin.env import official_chains
 from lerobot_subgoalvla.envs.calvin.protocol import GYM_ID
@@ -55,7 +56,7 @@ def test_policy_features_follow_lerobot_naming() -> None:
     ],
 )
 def test_bad_fields_name_the_flag_and_the_allowed_values(kwargs: dict, message: str) -> None:
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ConfigError, match=message):
         CalvinEnvConfig(**kwargs)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from lerobot_subgoalvla.config_error import ConfigError
 from lerobot_subgoalvla.envs.calvin.configs import CalvinEnvConfig
 from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
 from lerobot_subgoalvla.envs.calvin.sim.cameras import check_renderer
@@ -46,7 +47,7 @@ def test_unknown_renderer_is_refused_everywhere_with_the_allowed_values() -> Non
         CalvinSimulation("procedural", renderer="vulkan")
     with pytest.raises(ValueError, match="renderer='vulkan'"):
         CalvinEnv("open_drawer", renderer="vulkan")
-    with pytest.raises(ValueError, match="--env.renderer='vulkan' is not valid; use one of: tiny, egl"):
+    with pytest.raises(ConfigError, match="--env.renderer='vulkan' is not valid; use one of: tiny, egl"):
         CalvinEnvConfig(task="open_drawer", renderer="vulkan")
 
 

@@ -8,6 +8,7 @@ import torch
 from draccus.utils import ParsingError
 from lerobot.configs import FeatureType, PolicyFeature, PreTrainedConfig
 
+from lerobot_subgoalvla.config_error import ConfigError
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
     CONVERTER_COMMAND,
     SubgoalVLAConfig,
@@ -91,7 +92,7 @@ def test_saved_config_reloads_exactly(tmp_path) -> None:
     ],
 )
 def test_bad_values_are_rejected_with_the_allowed_values(flags: list[str], message: str) -> None:
-    with pytest.raises(ValueError) as info:
+    with pytest.raises(ConfigError) as info:
         parse(*flags)
     assert message in str(info.value)
     assert "\n" not in str(info.value)

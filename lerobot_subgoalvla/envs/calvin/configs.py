@@ -25,6 +25,7 @@ from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
 from lerobot_subgoalvla.calvin_vocab import CALVIN_FPS, TASK_NAMES
+from lerobot_subgoalvla.config_error import ConfigError
 from lerobot_subgoalvla.envs.calvin.protocol import (
     ACTION_MODES,
     CALVIN_EP_LEN,
@@ -109,34 +110,34 @@ class CalvinEnvConfig(EnvConfig):
 
     def _validate(self) -> None:
         if self.task != LH_MTLC and self.task not in TASK_NAMES:
-            raise ValueError(
+            raise ConfigError(
                 f"--env.task={self.task!r} is not valid; use {LH_MTLC!r} or one of: {', '.join(TASK_NAMES)}"
             )
         if self.scene not in SCENES:
-            raise ValueError(f"--env.scene={self.scene!r} is not valid; use one of: {', '.join(SCENES)}")
+            raise ConfigError(f"--env.scene={self.scene!r} is not valid; use one of: {', '.join(SCENES)}")
         if self.scene != "procedural" and self.assets_dir is None:
-            raise ValueError(
+            raise ConfigError(
                 f"--env.scene={self.scene} needs --env.assets_dir=<a clone of calvin_env with data/ and "
                 "conf/>"
             )
         if self.action_mode not in ACTION_MODES:
-            raise ValueError(
+            raise ConfigError(
                 f"--env.action_mode={self.action_mode!r} is not valid; use one of: {', '.join(ACTION_MODES)}"
             )
         if self.renderer not in RENDERERS:
-            raise ValueError(
+            raise ConfigError(
                 f"--env.renderer={self.renderer!r} is not valid; use one of: {', '.join(RENDERERS)}"
             )
         if self.fps != CALVIN_FPS:
-            raise ValueError(f"--env.fps={self.fps} is not valid; CALVIN steps at {CALVIN_FPS} Hz")
+            raise ConfigError(f"--env.fps={self.fps} is not valid; CALVIN steps at {CALVIN_FPS} Hz")
         if not 0 <= self.chain_start < self.chain_stop <= NUM_EVAL_CHAINS:
-            raise ValueError(
+            raise ConfigError(
                 f"--env.chain_start={self.chain_start} / --env.chain_stop={self.chain_stop} must satisfy "
                 f"0 <= chain_start < chain_stop <= {NUM_EVAL_CHAINS}"
             )
         for name in ("episode_length", "static_image_size", "gripper_image_size"):
             if getattr(self, name) < 1:
-                raise ValueError(f"--env.{name}={getattr(self, name)} must be a positive integer")
+                raise ConfigError(f"--env.{name}={getattr(self, name)} must be a positive integer")
 
     @property
     def chain_ids(self) -> range:

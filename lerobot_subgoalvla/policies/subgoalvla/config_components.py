@@ -13,11 +13,13 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from lerobot_subgoalvla.config_error import ConfigError
+
 
 def require_positive(name: str, value: int | float | None) -> None:
     """Raise one line naming ``--policy.<name>`` unless ``value`` is a positive number."""
     if value is None or value <= 0:
-        raise ValueError(f"--policy.{name} must be positive, got {value!r}")
+        raise ConfigError(f"--policy.{name} must be positive, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -120,7 +122,7 @@ class CrossAttentionConfig:
         require_positive(f"{name}.num_heads", self.num_heads)
         require_positive(f"{name}.mlp_ratio", self.mlp_ratio)
         if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"--policy.{name}.dropout must be in [0, 1), got {self.dropout}")
+            raise ConfigError(f"--policy.{name}.dropout must be in [0, 1), got {self.dropout}")
 
 
 @dataclass
@@ -172,24 +174,24 @@ class DiTHeadConfig:
         if self.clip_sample_range is not None:
             require_positive(f"{name}.clip_sample_range", self.clip_sample_range)
         if self.hidden_size % self.num_heads != 0:
-            raise ValueError(
+            raise ConfigError(
                 f"--policy.{name}.hidden_size={self.hidden_size} must be divisible by "
                 f"--policy.{name}.num_heads={self.num_heads}"
             )
         if self.num_inference_steps > self.num_train_timesteps:
-            raise ValueError(
+            raise ConfigError(
                 f"--policy.{name}.num_inference_steps={self.num_inference_steps} must be <= "
                 f"--policy.{name}.num_train_timesteps={self.num_train_timesteps} (DDIM skips timesteps, it "
                 "cannot add any)"
             )
         if self.guidance_scale < 1.0:
-            raise ValueError(
+            raise ConfigError(
                 f"--policy.{name}.guidance_scale must be >= 1 (1 disables CFG), got {self.guidance_scale}"
             )
         if not 0.0 <= self.label_dropout < 1.0:
-            raise ValueError(f"--policy.{name}.label_dropout must be in [0, 1), got {self.label_dropout}")
+            raise ConfigError(f"--policy.{name}.label_dropout must be in [0, 1), got {self.label_dropout}")
         if self.l2_weight < 0:
-            raise ValueError(f"--policy.{name}.l2_weight must be >= 0, got {self.l2_weight}")
+            raise ConfigError(f"--policy.{name}.l2_weight must be >= 0, got {self.l2_weight}")
 
 
 # ------------------------------------------------------------------------------------------------------------

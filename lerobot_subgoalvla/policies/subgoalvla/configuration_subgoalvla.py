@@ -36,6 +36,7 @@ from lerobot.configs import NormalizationMode, PreTrainedConfig
 from lerobot.optim import AdamWConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
+from lerobot_subgoalvla.config_error import ConfigError
 from lerobot_subgoalvla.policies.subgoalvla.config_components import (
     PRESET_VALUES,
     BackboneConfig,
@@ -65,7 +66,7 @@ TORCH_DTYPES = ("float32", "bfloat16", "float16")
 
 def _require_choice(name: str, value: str, allowed: tuple[str, ...]) -> None:
     if value not in allowed:
-        raise ValueError(f"--policy.{name}={value!r} is not valid; allowed values: {', '.join(allowed)}")
+        raise ConfigError(f"--policy.{name}={value!r} is not valid; allowed values: {', '.join(allowed)}")
 
 
 @PreTrainedConfig.register_subclass("subgoalvla")
@@ -199,12 +200,12 @@ class SubgoalVLAConfig(PreTrainedConfig):
         _require_choice("backbone.torch_dtype", self.backbone.torch_dtype, TORCH_DTYPES)
         _require_choice("dtype", self.dtype, TORCH_DTYPES)
         if self.normalization_mapping.get("STATE") != NormalizationMode.IDENTITY:
-            raise ValueError(
+            raise ConfigError(
                 "--policy.normalization_mapping must keep STATE: IDENTITY; SubgoalVLA normalises the "
                 "proprioception itself (state statistics, continuous angles)"
             )
         if len(self.state_angle_dims) != len(self.state_angle_home):
-            raise ValueError(
+            raise ConfigError(
                 f"--policy.state_angle_home needs one value per --policy.state_angle_dims entry "
                 f"({len(self.state_angle_dims)}), got {len(self.state_angle_home)}"
             )
@@ -214,14 +215,14 @@ class SubgoalVLAConfig(PreTrainedConfig):
         require_positive("aggregation_top_k", self.aggregation_top_k)
         require_positive("backbone.max_instruction_tokens", self.backbone.max_instruction_tokens)
         if self.n_action_steps > self.chunk_size:
-            raise ValueError(
+            raise ConfigError(
                 f"--policy.n_action_steps={self.n_action_steps} must be <= "
                 f"--policy.chunk_size={self.chunk_size}"
             )
         if self.stage2_start_step is not None and self.stage2_start_step < 0:
-            raise ValueError(f"--policy.stage2_start_step must be >= 0, got {self.stage2_start_step}")
+            raise ConfigError(f"--policy.stage2_start_step must be >= 0, got {self.stage2_start_step}")
         if not self.use_planner and (self.stage == "stage2" or self.stage2_start_step is not None):
-            raise ValueError(
+            raise ConfigError(
                 "--policy.use_planner=false (w/o SP) has no stage II: drop --policy.stage/stage2_start_step"
             )
         self._validate_backbone()
@@ -237,7 +238,7 @@ class SubgoalVLAConfig(PreTrainedConfig):
         ):
             require_positive(name, getattr(self, name))
         if not 0.0 <= self.scheduler_warmup_ratio < 1.0:
-            raise ValueError(
+            raise ConfigError(
                 f"--policy.scheduler_warmup_ratio must be in [0, 1), got {self.scheduler_warmup_ratio}"
             )
 
@@ -247,31 +248,31 @@ class SubgoalVLAConfig(PreTrainedConfig):
             for name in bb.tiny_architecture_fields:
                 require_positive(f"backbone.{name}", getattr(bb, name))
             if bb.image_size % bb.patch_size != 0:
-                raise ValueError(
+                raise ConfigError(
                     f"--policy.backbone.image_size={bb.image_size} must be a multiple of "
                     f"--policy.backbone.patch_size={bb.patch_size}"
                 )
             for prefix in ("text", "vision"):
                 hidden, heads = getattr(bb, f"{prefix}_hidden_size"), getattr(bb, f"{prefix}_num_heads")
                 if hidden % heads != 0:
-                    raise ValueError(
+                    raise ConfigError(
                         f"--policy.backbone.{prefix}_hidden_size={hidden} must be divisible by "
                         f"--policy.backbone.{prefix}_num_heads={heads}"
                     )
             if bb.layer is not None and not 1 <= bb.layer <= bb.text_num_layers:
-                raise ValueError(
+                raise ConfigError(
                     f"--policy.backbone.layer={bb.layer} must be in [1, {bb.text_num_layers}] "
                     f"(the tiny LLM has {bb.text_num_layers} layers); leave it unset for m // 2"
                 )
         else:
             given = [name for name in bb.tiny_architecture_fields if getattr(bb, name) is not None]
             if given:
-                raise ValueError(
+                raise ConfigError(
                     f"--policy.backbone.{given[0]} only applies to the tiny backbone (name_or_path unset); "
                     f"{bb.name_or_path!r} brings its own architecture"
                 )
             if bb.layer is not None and bb.layer < 1:
-                raise ValueError(f"--policy.backbone.layer must be >= 1, got {bb.layer}")
+                raise ConfigError(f"--policy.backbone.layer must be >= 1, got {bb.layer}")
 
     # Features -----------------------------------------------------------------------------------------------
     def validate_features(self) -> None:
