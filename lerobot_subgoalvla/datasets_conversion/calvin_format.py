@@ -143,8 +143,8 @@ def check_frame(path: Path, keys: Sequence[str] = CORE_KEYS) -> dict[str, np.nda
 
     Raises:
         FileNotFoundError: the file is missing.
-        ValueError: the file is corrupt, lacks a key, or a key has the wrong shape/dtype. One line naming
-            the file and the fix.
+        ValueError: the file is corrupt, lacks a key, a key has the wrong shape/dtype, or a float key holds a
+            NaN or an infinity. One line naming the file and the fix.
     """
     path = Path(path)
     if not path.is_file():
@@ -174,6 +174,12 @@ def check_frame(path: Path, keys: Sequence[str] = CORE_KEYS) -> dict[str, np.nda
             raise ValueError(
                 f"{path}: key {key!r} is {array.dtype} {array.shape}, expected {spec.describe()}; "
                 "re-export the frame in CALVIN's format (calvin-spec 1.3)"
+            )
+        if array.dtype.kind == "f" and not np.isfinite(array).all():
+            bad = np.flatnonzero(~np.isfinite(array.ravel()))
+            raise ValueError(
+                f"{path}: key {key!r} holds {array.ravel()[bad[0]]} at index {int(bad[0])} ({len(bad)} "
+                "non-finite value(s)); fix or drop this frame: statistics and training would turn NaN"
             )
     return arrays
 
@@ -285,6 +291,10 @@ def _atomic_write(path: Path, write) -> None:
 def write_frame(split_dir: Path, frame_id: int, arrays: Mapping[str, np.ndarray]) -> Path:
     """Write one ``episode_XXXXXXX.npz`` (np.savez_compressed, atomic). Returns its path."""
     path = Path(split_dir) / frame_filename(frame_id)
+    for key, value in arrays.items():
+        value = np.asarray(value)
+        if value.dtype.kind == "f" and not np.isfinite(value).all():
+            raise ValueError(f"{path}: refusing to write non-finite values in key {key!r}")
     _atomic_write(
         path, lambda handle: np.savez_compressed(handle, **{k: np.asarray(v) for k, v in arrays.items()})
     )

@@ -165,6 +165,24 @@ def test_overwrite_never_deletes_the_source(
     assert _tree(tmp_path / "copy") == before
 
 
+@pytest.mark.parametrize(("key", "value"), [("robot_obs", np.inf), ("rel_actions", np.nan)])
+def test_non_finite_values_are_refused_naming_file_and_key(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, key: str, value: float
+) -> None:
+    src = tmp_path / "src"
+    write_native_split(src / "training", [(0, 19)], (), None, static=64, gripper=64)
+    path = src / "training" / frame_filename(7)
+    with np.load(path) as npz:
+        arrays = dict(npz)
+    arrays[key] = arrays[key].copy()
+    arrays[key][2] = value
+    np.savez_compressed(path, **arrays)
+    argv = [str(src), "--repo-id", "local/x", "--mode", "all", "--image-format", "image"]
+    message = _run_main([*argv, "--root", str(tmp_path / "o")], caplog)
+    assert f"episode_0000007.npz: key {key!r} holds {value}" in message and "non-finite" in message
+    assert not (tmp_path / "o").exists()
+
+
 def test_corrupt_frame_mid_conversion_leaves_nothing_complete(tmp_path: Path, caplog) -> None:
     src = tmp_path / "src"
     write_native_split(src / "training", [(0, 19), (30, 49)], (), None, static=64, gripper=64)

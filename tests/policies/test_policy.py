@@ -45,6 +45,20 @@ def test_forward_gives_finite_losses_and_gradients_reach_every_group(
     assert all(p.grad is None for p in policy.model.backbone.vision_parameters())  # frozen
 
 
+def test_a_non_finite_loss_stops_training_with_the_step_and_the_cause(
+    make_config, make_policy_and_processors, raw_batch
+) -> None:
+    policy, pre, _ = make_policy_and_processors(make_config())
+    batch = pre(dict(raw_batch))
+    batch["action"] = batch["action"].clone()
+    batch["action"][0, 0, 0] = float("nan")  # what a NaN in one dataset frame becomes
+    policy.train()
+    with pytest.raises(
+        FloatingPointError, match=r"training loss is nan at optimizer step 0 .* NaN/inf in the data"
+    ):
+        policy.forward(batch)
+
+
 def test_optimizer_groups_have_the_configured_learning_rates(make_config, make_policy_and_processors) -> None:
     rates = {"optimizer_lr_heads": 1e-4, "optimizer_lr_projector": 1e-5, "optimizer_lr_llm": 2e-5}
     policy, _, _ = make_policy_and_processors(make_config(**rates))

@@ -122,6 +122,16 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
                 raise ValueError(self.config.missing_feature_message(key))
         stage = self.stage
         losses = self.model.compute_losses(batch, stage)
+        if self.training and not torch.isfinite(losses["loss"]):
+            # Stop before the optimizer step: a non-finite loss would poison every weight, and LeRobot would
+            # go on logging NaN and save a broken checkpoint.
+            step = int(self.optimizer_steps)
+            raise FloatingPointError(
+                f"SubgoalVLA: training loss is {losses['loss'].item()} at optimizer step {step} (planner "
+                f"{losses['planner_loss'].item()}, generator {losses['generator_loss'].item()}); "
+                "likely cause: NaN/inf in the dataset (reconvert it: the converter refuses them) or a "
+                "learning rate too high for this preset"
+            )
         logs = {
             "planner_loss": losses["planner_loss"].item(),
             "generator_loss": losses["generator_loss"].item(),
