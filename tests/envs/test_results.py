@@ -91,6 +91,8 @@ def test_eval_info_import() -> None:
         ({"task_id": 0, "metrics": {"sum_rewards": [1.0, 1.0]}}, "n_episodes=1"),
         ({"task_id": 0, "metrics": {}}, "sum_rewards"),
         ({"task_id": 0, "metrics": {"sum_rewards": [6.0]}}, "num_completed"),
+        # what a single-task run (--env.task=open_drawer, task_id 14 = its CALVIN id) writes: not a chain
+        ({"task_id": 0, "metrics": {"sum_rewards": [1.0], "successes": [True]}}, "single-task evaluation"),
     ],
 )
 def test_eval_info_errors(entry: dict, match: str) -> None:

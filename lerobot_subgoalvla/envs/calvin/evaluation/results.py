@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from lerobot_subgoalvla.calvin_vocab import check_task_name
+from lerobot_subgoalvla.envs.calvin.protocol import CHAIN_LENGTH
 
 #: Per-subtask outcomes (CALVIN's per-task counting, spec 4.4).
 SUCCESS, FAILURE, NOT_ATTEMPTED = "success", "failure", "not_attempted"
@@ -167,9 +168,9 @@ def episode_results_from_eval_info(
         chain_tasks: chain id -> its task names, from the chain list the evaluation used.
 
     Raises:
-        ValueError: missing fields, a chain id outside ``chain_tasks``, not exactly one episode per chain, or
-        a
-            non-integer reward sum.
+        ValueError: missing fields, a chain id outside ``chain_tasks``, not exactly one episode per chain, a
+            non-integer reward sum, or a success that is not 5 of 5 (a single-task evaluation, whose task_id
+            is the task's CALVIN id, would otherwise pass for a chain).
     """
     if not isinstance(eval_info, Mapping) or not isinstance(eval_info.get("per_task"), list):
         raise ValueError("eval_info has no 'per_task' list; pass the eval_info.json that lerobot-eval wrote")
@@ -191,5 +192,12 @@ def episode_results_from_eval_info(
         completed = round(float(sums[0]))
         if abs(float(sums[0]) - completed) > 1e-6:
             raise ValueError(f"chain {chain_id}: sum_rewards {sums[0]} is not a whole number of subtasks")
+        successes = entry["metrics"].get("successes")
+        if successes is not None and bool(successes[0]) != (completed == CHAIN_LENGTH):
+            raise ValueError(
+                f"task_id {chain_id}: success={bool(successes[0])} after {completed} subtask(s) is not a "
+                "chain result (a chain succeeds at 5/5): this eval_info.json is from a single-task "
+                "evaluation; the LH-MTLC report needs lerobot-eval --env.task=lh_mtlc"
+            )
         results.append(EpisodeResult(chain_id, tuple(chain_tasks[chain_id]), completed))
     return results
