@@ -17,6 +17,7 @@ Dimension legend:
 from __future__ import annotations
 
 import os
+import pickle
 import tempfile
 import zipfile
 from collections.abc import Iterable, Mapping, Sequence
@@ -26,6 +27,8 @@ from zlib import error as zlib_error
 
 import numpy as np
 import yaml
+
+from lerobot_subgoalvla.calvin_vocab import check_task_name
 
 SPLITS: tuple[str, ...] = ("training", "validation")
 EPISODE_IDS_FILE = "ep_start_end_ids.npy"
@@ -133,9 +136,21 @@ class LanguageAnnotations:
         language = data["language"]
         emb = language.get("emb")
         indx = np.asarray(data["info"]["indx"], dtype=np.int64).reshape(-1, 2)  # (N, 2)
-        return cls(
-            indx=indx, ann=[str(a) for a in language["ann"]], task=[str(t) for t in language["task"]], emb=emb
-        )
+        ann = [_text(a, "instruction", i) for i, a in enumerate(language["ann"])]
+        task = [check_task_name(_text(t, "task name", i)) for i, t in enumerate(language["task"])]
+        return cls(indx=indx, ann=ann, task=task, emb=emb)
+
+
+def _text(value: object, what: str, index: int) -> str:
+    """A non-empty str from a str or UTF-8 bytes; ValueError naming the window otherwise."""
+    if isinstance(value, bytes | np.bytes_):
+        try:
+            value = bytes(value).decode("utf-8")
+        except UnicodeDecodeError as error:
+            raise ValueError(f"window {index}: {what} {bytes(value)!r} is not UTF-8 ({error})") from None
+    if not isinstance(value, str | np.str_) or not str(value).strip():
+        raise ValueError(f"window {index}: empty or non-text {what} {value!r}")
+    return str(value)
 
 
 def check_frame(path: Path, keys: Sequence[str] = CORE_KEYS) -> dict[str, np.ndarray]:
@@ -185,7 +200,12 @@ def check_frame(path: Path, keys: Sequence[str] = CORE_KEYS) -> dict[str, np.nda
 
 
 def _load_pickled(path: Path) -> object:
-    return np.load(path, allow_pickle=True).item()
+    try:
+        return np.load(path, allow_pickle=True).item()
+    except (pickle.UnpicklingError, EOFError, OSError, ValueError, AttributeError) as error:
+        raise ValueError(
+            f"{path}: unreadable ({type(error).__name__}: {error}); re-download this file"
+        ) from None
 
 
 @dataclass
@@ -253,7 +273,13 @@ class CalvinSplit:
                 f"{path}: language annotations not found; LANG mode needs them - use --mode all or add the "
                 "file"
             )
-        return LanguageAnnotations.from_dict(_load_pickled(path))
+        try:
+            return LanguageAnnotations.from_dict(_load_pickled(path))
+        except KeyError as error:
+            raise ValueError(f"{path}: no {error} entry; not CALVIN's auto_lang_ann layout") from None
+        except ValueError as error:
+            message = str(error)
+            raise ValueError(message if message.startswith(str(path)) else f"{path}: {message}") from None
 
     def statistics(self) -> dict | None:
         """``statistics.yaml`` as a dict, or None when the split has none."""

@@ -141,3 +141,35 @@ def test_validator_full_native_profile_requires_all_ten_keys(split_dir: Path) ->
     rng = np.random.default_rng(1)
     frame = synthetic_frame(rng, 0, 8, 8)
     assert set(frame) < set(ALL_KEYS)
+
+
+@pytest.mark.parametrize(
+    ("ann", "task", "match"),
+    [
+        ([b"open the \xff\xfe drawer"], ["open_drawer"], "window 0: instruction .* is not UTF-8"),
+        (["  "], ["open_drawer"], "window 0: empty or non-text instruction"),
+        (["open the drawer"], ["open_the_drawer"], "Unknown CALVIN task 'open_the_drawer'"),
+        ([b"open the drawer"], [b"open_drawer"], None),  # UTF-8 bytes, as some exports store them: fine
+    ],
+)
+def test_bad_annotations_are_refused_naming_the_file_and_window(tmp_path: Path, ann, task, match) -> None:
+    layout = {"info": {"indx": [(0, 9)], "episodes": []}, "language": {"ann": ann, "task": task}}
+    path = tmp_path / "lang_annotations" / "auto_lang_ann.npy"
+    path.parent.mkdir(parents=True)
+    np.save(path, layout, allow_pickle=True)
+    write_segments(tmp_path, np.array([[0, 9]]))
+    split = CalvinSplit(tmp_path)
+    if match is None:
+        assert split.language().ann == ["open the drawer"] and split.language().task == ["open_drawer"]
+        return
+    with pytest.raises(ValueError, match=f"auto_lang_ann.npy: {match}"):
+        split.language()
+
+
+def test_garbled_annotation_file_is_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "lang_annotations" / "auto_lang_ann.npy"
+    path.parent.mkdir(parents=True)
+    path.write_bytes(np.lib.format.magic(1, 0) + b"garbage that is not a pickle")
+    write_segments(tmp_path, np.array([[0, 9]]))
+    with pytest.raises(ValueError, match=r"auto_lang_ann.npy: unreadable .*; re-download this file"):
+        CalvinSplit(tmp_path).language()
