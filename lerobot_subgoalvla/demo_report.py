@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
+from lerobot_subgoalvla.cli_errors import user_errors
 
 logger = logging.getLogger(__name__)
 
@@ -265,7 +266,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if path is not None and not path.exists():
             logger.error("%s %s does not exist; run the earlier demo stages first", flag, path)
             return 1
-    summary = build_report(args.train_log, args.eval_dir, args.output_dir)
+    with user_errors(logger):
+        summary = build_report(args.train_log, args.eval_dir, args.output_dir)
     mean = summary["mean_task_success"]
     chains = summary["lh_mtlc"]
     logger.info(

@@ -30,7 +30,6 @@ import json
 import logging
 import os
 import shutil
-import sys
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
@@ -39,6 +38,7 @@ from typing import TYPE_CHECKING, Literal
 
 from tqdm import tqdm
 
+from lerobot_subgoalvla.cli_errors import user_errors
 from lerobot_subgoalvla.datasets_conversion.calvin_format import SPLITS, CalvinSplit
 from lerobot_subgoalvla.datasets_conversion.calvin_quirks import EpisodeSpec, language_episodes, play_episodes
 from lerobot_subgoalvla.datasets_conversion.calvin_validate import validate_split
@@ -291,13 +291,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger().setLevel(logging.INFO)  # LeRobot may have installed the root handler already
     args = parse_args(argv)
-    try:
+    with user_errors(logger, "interrupted; rerun the same command with --resume to continue"):
         datasets = convert(
             args.src, args.repo_id, args.root, args.split, args.push_to_hub, **options_from_args(args)
         )
-    except (FileNotFoundError, FileExistsError, ValueError, RuntimeError) as error:
-        logger.error("%s", error)
-        sys.exit(1)
     for name, dataset in datasets.items():
         logger.info(
             "%s: %d episodes, %d frames at %s", name, dataset.num_episodes, dataset.num_frames, dataset.root

@@ -31,7 +31,6 @@ import json
 import logging
 import os
 import shutil
-import sys
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
@@ -42,6 +41,7 @@ import numpy as np
 from tqdm import tqdm
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES, check_task_name
+from lerobot_subgoalvla.cli_errors import user_errors
 from lerobot_subgoalvla.datasets_conversion.calvin_format import (
     SPLITS,
     LanguageAnnotations,
@@ -307,11 +307,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     logging.getLogger().setLevel(logging.INFO)  # LeRobot may have installed the root handler already
     args = vars(parse_args(argv))
     output, workers = args.pop("output"), args.pop("workers")
-    try:
+    with user_errors(logger, "interrupted; rerun the same command to continue where it stopped"):
         paths = generate(output, GeneratorOptions(**args), workers)
-    except (FileNotFoundError, FileExistsError, ValueError, RuntimeError) as error:
-        logger.error("%s", error)
-        sys.exit(1)
     logger.info("generated %s", ", ".join(str(p) for p in paths.values()))
 
 

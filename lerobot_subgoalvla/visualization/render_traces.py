@@ -34,6 +34,7 @@ from lerobot.envs.utils import preprocess_observation
 from lerobot.policies import get_policy_class, make_pre_post_processors
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
+from lerobot_subgoalvla.cli_errors import user_errors
 from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
 from lerobot_subgoalvla.envs.calvin.protocol import LH_MTLC, SCENES
 from lerobot_subgoalvla.policies.subgoalvla.proprio_normalization import ProprioNormalizerProcessorStep
@@ -169,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("lerobot_subgoalvla").setLevel(logging.INFO)  # also when an import configured logging
     args = _parse_args(argv)
-    try:
+    with user_errors(logger):
         if Path(args.output).suffix not in (".mp4", ".png"):
             raise ValueError(
                 f"--output {args.output}: use a .mp4 (video) or .png (strip of frames) file name"
@@ -190,9 +191,6 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             env.close()
         write_trace_media(frames, args.output, fps=args.fps)
-    except (FileNotFoundError, ValueError) as error:
-        logger.error("%s", error)
-        return 1
     return 0
 
 

@@ -181,3 +181,25 @@ def test_an_unrelated_split_folder_in_output_is_refused(tmp_path: Path) -> None:
     with pytest.raises(FileExistsError, match="already has training/ from something else"):
         generate(tmp_path / "out", options)
     assert (tmp_path / "out" / "training" / "mine.txt").read_text() == "not generated"
+
+
+def test_cli_failures_are_one_line(tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch) -> None:
+    import logging
+
+    (tmp_path / "a_file").write_text("x")
+    argv = ["--num-tasks", "1", "--seed", "0", "--val-fraction", "0", "--tasks-per-segment", "1",
+            "--static-size", "16", "--gripper-size", "16", "--tasks", "turn_on_led"]  # fmt: skip
+    for output, exception, code, text in [
+        (tmp_path / "a_file" / "out", None, 1, "a_file"),  # an output below a file: NotADirectoryError
+        (tmp_path / "fine", KeyboardInterrupt, 130, "rerun the same command to continue"),
+    ]:
+        if exception is not None:
+            monkeypatch.setattr(
+                generate_calvin, "generate", lambda *a, **k: (_ for _ in ()).throw(exception())
+            )
+        caplog.clear()
+        with caplog.at_level(logging.ERROR), pytest.raises(SystemExit) as info:
+            generate_calvin.main(["--output", str(output), *argv])
+        assert info.value.code == code
+        errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+        assert len(errors) == 1 and "\n" not in errors[0] and text in errors[0]

@@ -261,8 +261,9 @@ def test_cli_writes_json(tmp_path: Path) -> None:
 def test_cli_bad_args(tmp_path: Path, caplog: pytest.LogCaptureFixture, argv: list[str]) -> None:
     out = tmp_path / "chains.json"
     full = (["--output", str(out)] if argv else []) + ["--num-chains", "10", *argv]
-    with caplog.at_level(logging.ERROR):
-        assert main(full) == 2
+    with caplog.at_level(logging.ERROR), pytest.raises(SystemExit) as exit_info:
+        main(full)
+    assert exit_info.value.code == 1
     errors = [r for r in caplog.records if r.levelno >= logging.ERROR]
     assert len(errors) == 1 and "\n" not in errors[0].getMessage()
     assert not out.exists()

@@ -127,8 +127,9 @@ def _bad_inputs(tmp_path: Path) -> dict[str, list[str]]:
 @pytest.mark.parametrize("case", ["missing", "duplicate", "malformed", "n_episodes"])
 def test_cli_bad_input(tmp_path: Path, caplog: pytest.LogCaptureFixture, case: str) -> None:
     argv = _bad_inputs(tmp_path)[case] + ["--output-dir", str(tmp_path / "out")]
-    with caplog.at_level(logging.ERROR):
-        assert main(argv) == 2
+    with caplog.at_level(logging.ERROR), pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 1
     errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
     assert len(errors) == 1 and "\n" not in errors[0]
     assert not (tmp_path / "out" / "results.json").exists()

@@ -136,6 +136,8 @@ def test_cli_bad_path_is_one_line_and_nonzero(tmp_path: Path, caplog) -> None:
         "--output",
         str(tmp_path / "a.mp4"),
     ]
-    assert render_traces.main(argv) == 1
+    with pytest.raises(SystemExit) as exit_info:
+        render_traces.main(argv)
+    assert exit_info.value.code == 1
     assert "no config.json" in caplog.text and "pretrained_model" in caplog.text
     assert not (tmp_path / "a.mp4").exists()

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS, TASK_NAMES, check_task_name
+from lerobot_subgoalvla.cli_errors import user_errors
 
 # The symbolic -> simulator mapping lives in chain_scene.py and per-episode results in results.py; both are
 # re-exported here because chains.py is the env's seam (DESIGN.md).
@@ -364,12 +365,9 @@ def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> int:
     """``subgoalvla-calvin-chains``: write chains ``[start, stop)`` of CALVIN's list as JSON."""
     configure_cli_logging()
-    try:
+    with user_errors(logger):
         args = _parse_args(argv)
         chains = generate_chains(args.num_chains)[args.start : args.stop]
         save_chains(args.output, chains, start=args.start)
-    except (ValueError, OSError) as err:
-        logger.error("%s", err)
-        return 2
     logger.info("Wrote chains %d..%d of %d to %s", args.start, args.stop - 1, args.num_chains, args.output)
     return 0

@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
+from lerobot_subgoalvla.cli_errors import user_errors
 from lerobot_subgoalvla.envs.calvin.evaluation.chains import (
     OneLineArgumentParser,
     configure_cli_logging,
@@ -188,14 +189,11 @@ def _parse_args(argv: Sequence[str] | None) -> Any:
 def main(argv: Sequence[str] | None = None) -> int:
     """``subgoalvla-calvin-report``: log the LH table, write results.json and results.png."""
     configure_cli_logging()
-    try:
+    with user_errors(logger):
         args = _parse_args(argv)
         report = summarize(load_results(args.results, args.chains, args.num_chains))
         atomic_write(args.output_dir / "results.json", json.dumps(report.to_json(), indent=2))
         plot_report(report, args.output_dir / "results.png")
-    except (ValueError, OSError) as err:
-        logger.error("%s", err)
-        return 2
     logger.info("%s", format_report(report))
     logger.info("Wrote %s and %s", args.output_dir / "results.json", args.output_dir / "results.png")
     return 0
