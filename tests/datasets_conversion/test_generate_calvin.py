@@ -194,9 +194,11 @@ def test_cli_failures_are_one_line(tmp_path: Path, caplog: pytest.LogCaptureFixt
         (tmp_path / "fine", KeyboardInterrupt, 130, "rerun the same command to continue"),
     ]:
         if exception is not None:
-            monkeypatch.setattr(
-                generate_calvin, "generate", lambda *a, **k: (_ for _ in ()).throw(exception())
-            )
+
+            def interrupted(*args, error=exception, **kwargs):  # noqa: ANN002, ANN003, ANN202
+                raise error()
+
+            monkeypatch.setattr(generate_calvin, "generate", interrupted)
         caplog.clear()
         with caplog.at_level(logging.ERROR), pytest.raises(SystemExit) as info:
             generate_calvin.main(["--output", str(output), *argv])

@@ -141,7 +141,9 @@ def test_state_normalisation_other_than_identity_is_refused(make_config) -> None
 
     mapping = {"VISUAL": NormalizationMode.IDENTITY, "STATE": NormalizationMode.MEAN_STD,
                "ENV": NormalizationMode.IDENTITY, "ACTION": NormalizationMode.MIN_MAX}  # fmt: skip
-    with pytest.raises(ValueError, match="STATE: IDENTITY"):
+    from lerobot_subgoalvla.config_error import ConfigError
+
+    with pytest.raises(ConfigError, match="STATE: IDENTITY"):
         make_config(normalization_mapping=mapping)
 
 

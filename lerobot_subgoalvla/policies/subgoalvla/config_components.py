@@ -22,6 +22,12 @@ def require_positive(name: str, value: int | float | None) -> None:
         raise ConfigError(f"--policy.{name} must be positive, got {value!r}")
 
 
+def require_choice(name: str, value: str, allowed: tuple[str, ...]) -> None:
+    """Reject ``value`` unless it is one of ``allowed``, naming the flag and the allowed values."""
+    if value not in allowed:
+        raise ConfigError(f"--policy.{name}={value!r} is not valid; allowed values: {', '.join(allowed)}")
+
+
 @dataclass(frozen=True)
 class TinyLlavaDims:
     """Dimensions of the randomly initialised tiny LLaVA (CLIP vision tower + LLaMA decoder).

@@ -42,6 +42,7 @@ from lerobot_subgoalvla.policies.subgoalvla.config_components import (
     BackboneConfig,
     CrossAttentionConfig,
     DiTHeadConfig,
+    require_choice,
     require_positive,
 )
 from lerobot_subgoalvla.policies.subgoalvla.schedule import TwoStageCosineSchedulerConfig
@@ -62,11 +63,6 @@ STAGES = ("stage1", "stage2")
 #: ``PRESET_VALUES[...]["recipe"]`` fills attributes of SubgoalVLAConfig itself (not of a nested dataclass).
 RECIPE = "recipe"
 TORCH_DTYPES = ("float32", "bfloat16", "float16")
-
-
-def _require_choice(name: str, value: str, allowed: tuple[str, ...]) -> None:
-    if value not in allowed:
-        raise ConfigError(f"--policy.{name}={value!r} is not valid; allowed values: {', '.join(allowed)}")
 
 
 @PreTrainedConfig.register_subclass("subgoalvla")
@@ -171,7 +167,7 @@ class SubgoalVLAConfig(PreTrainedConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        _require_choice("preset", self.preset, PRESETS)
+        require_choice("preset", self.preset, PRESETS)
         self._fill_from_preset()
         self._validate()
 
@@ -195,10 +191,10 @@ class SubgoalVLAConfig(PreTrainedConfig):
 
     # Validation ---------------------------------------------------------------------------------------------
     def _validate(self) -> None:
-        _require_choice("feature_aggregation", self.feature_aggregation, FEATURE_AGGREGATIONS)
-        _require_choice("stage", self.stage, STAGES)
-        _require_choice("backbone.torch_dtype", self.backbone.torch_dtype, TORCH_DTYPES)
-        _require_choice("dtype", self.dtype, TORCH_DTYPES)
+        require_choice("feature_aggregation", self.feature_aggregation, FEATURE_AGGREGATIONS)
+        require_choice("stage", self.stage, STAGES)
+        require_choice("backbone.torch_dtype", self.backbone.torch_dtype, TORCH_DTYPES)
+        require_choice("dtype", self.dtype, TORCH_DTYPES)
         if self.normalization_mapping.get("STATE") != NormalizationMode.IDENTITY:
             raise ConfigError(
                 "--policy.normalization_mapping must keep STATE: IDENTITY; SubgoalVLA normalises the "
