@@ -74,7 +74,7 @@ def rollout_with_traces(
     Args:
         policy: A SubgoalVLA policy with a planner (it exposes ``last_subgoal_trace``).
         preprocessor: The policy's pre-processor (its ``observation.state`` statistics un-normalise the
-        trace).
+            trace).
         postprocessor: The policy's post-processor (un-normalises the actions).
         env: A single (not vectorised) ``CalvinEnv``; reset here with ``seed``.
         num_steps: Environment steps at most (the rollout stops earlier when the episode ends).

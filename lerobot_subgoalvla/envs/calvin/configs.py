@@ -63,41 +63,46 @@ def _default_features_map() -> dict[str, str]:
 class CalvinEnvConfig(EnvConfig):
     """CALVIN env options (``--env.<field>=...``).
 
-    Attributes:
-        task: ``"lh_mtlc"`` (chains of five subtasks, CALVIN's benchmark) or one of the 34 task names.
-        fps: Control frequency; CALVIN steps at 30 Hz (240 Hz physics, 8 substeps), so only 30 is valid.
-        scene: ``"procedural"`` (our generated desk, no files needed) or ``"calvin_A"`` ... ``"calvin_D"``
-            (CALVIN's own URDFs, read from ``assets_dir``).
-        assets_dir: A clone of calvin_env (with ``data/`` and ``conf/``); required for the ``calvin_*``
-        scenes.
-        chain_start: First chain id evaluated in ``lh_mtlc`` (inclusive).
-        chain_stop: Last chain id evaluated in ``lh_mtlc`` (exclusive); at most 1000.
-        episode_length: Step budget of one (sub)task; CALVIN's EP_LEN is 360 (12 s). A chain episode lasts at
-            most ``5 * episode_length`` steps.
-        static_image_size: Side of the square static-camera image (CALVIN: 200).
-        gripper_image_size: Side of the square gripper-camera image (CALVIN: 84).
-        action_mode: ``"relative"`` (CALVIN's normalised rel_actions, Box(-1, 1)) or ``"absolute"``
-            (tcp position, euler angles, gripper).
-        renderer: ``"tiny"`` (pybullet's CPU TinyRenderer, default) or ``"egl"`` (OpenGL through pybullet's
-            EGL plugin: how CALVIN rendered its dataset; a model trained on real CALVIN sees such images).
-        results_path: If set, every finished chain episode appends one JSON line (chains.py's record) here;
-            ``subgoalvla-calvin-report`` turns them into CALVIN's LH-1..5 table.
+    Each field's help is the comment above it: ``--help`` shows it.
     """
 
+    # `"lh_mtlc"` (chains of five subtasks, CALVIN's benchmark) or one of the 34 task names.
     task: str | None = LH_MTLC
+    # Control frequency; CALVIN steps at 30 Hz (240 Hz physics, 8 substeps), so only 30 is valid.
     fps: int = CALVIN_FPS
+    # `"procedural"` (our generated desk, no files needed) or `"calvin_A"` ... `"calvin_D"` (CALVIN's own
+    # URDFs, read from `assets_dir`).
     scene: str = "procedural"
+    # A clone of calvin_env (with `data/` and `conf/`); required for the `calvin_*` scenes.
     assets_dir: str | None = None
+    # First chain id evaluated in `lh_mtlc` (inclusive).
     chain_start: int = 0
+    # Last chain id evaluated in `lh_mtlc` (exclusive); at most 1000.
     chain_stop: int = NUM_EVAL_CHAINS
+    # Step budget of one (sub)task; CALVIN's EP_LEN is 360 (12 s). A chain episode lasts at most `5 *
+    # episode_length` steps.
     episode_length: int = CALVIN_EP_LEN
+    # Side of the square static-camera image (CALVIN: 200).
     static_image_size: int = 200
+    # Side of the square gripper-camera image (CALVIN: 84).
     gripper_image_size: int = 84
+    # `"relative"` (CALVIN's normalised rel_actions, Box(-1, 1)) or `"absolute"` (tcp position, euler angles,
+    # gripper).
     action_mode: str = "relative"
+    # `"tiny"` (pybullet's CPU TinyRenderer, default) or `"egl"` (OpenGL through pybullet's EGL plugin: how
+    # CALVIN rendered its dataset; a model trained on real CALVIN sees such images).
     renderer: str = "tiny"
+    # If set, every finished chain episode appends one JSON line (chains.py's record) here; `subgoalvla-
+    # calvin-report` turns them into CALVIN's LH-1..5 table.
     results_path: str | None = None
+    # the env's observation/action features (set from the image sizes; leave unset).
     features: dict[str, PolicyFeature] = field(default_factory=_default_features)
+    # env key -> LeRobot key (`agent_pos` -> `observation.state`, ...; leave unset).
     features_map: dict[str, str] = field(default_factory=_default_features_map)
+    # LeRobot's: task_ids evaluated at once, one thread and one set of simulators each.
+    max_parallel_tasks: int = 1
+    # LeRobot's: skip gymnasium's env checker (CalvinEnv passes it; the check costs a reset).
+    disable_env_checker: bool = True
 
     def __post_init__(self) -> None:
         self._validate()

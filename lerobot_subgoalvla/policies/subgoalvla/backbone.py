@@ -288,14 +288,13 @@ class VLMBackbone(nn.Module):
 
     Args:
         name_or_path: Hugging Face id or local directory of a LLaVA-style checkpoint; None builds the tiny
-        model.
+            model.
         layer: k, 1-based LLM layer whose output is returned; None -> m // 2 (paper section 4.1).
         freeze_vision_tower: freeze the vision encoder (no gradients, always eval mode), paper section 5.
         tiny: dimensions of the tiny model (only with ``name_or_path=None``).
         torch_dtype: weight dtype, "float32" | "bfloat16" | "float16" (or a torch.dtype).
         vlm_config: with ``name_or_path=None``, build this architecture (random weights) instead of the tiny
-        one;
-            used to size the paper/small architectures on the meta device without downloading anything.
+            one; used to size the paper/small architectures on the meta device without downloading anything.
     """
 
     def __init__(

@@ -51,45 +51,43 @@ class TinyLlavaDims:
 class BackboneConfig:
     """The vision-language backbone whose layer-k hidden states the heads read (paper section 4.1).
 
-    Attributes:
-        name_or_path: Hugging Face id or local directory of a LLaVA-architecture checkpoint
-            (``llava-hf/llava-1.5-7b-hf`` in the paper). ``None`` builds a randomly initialised tiny LLaVA
-            from the ``text_*``/``vision_*`` dimensions below (no download).
-        layer: k, the LLM layer whose hidden states H[k] feed the cross-attention. ``None`` means k = m // 2
-            (m = number of LLM layers), the paper's choice; it is resolved from the loaded model.
-        freeze_vision_tower: keep the vision encoder frozen (paper section 5, appendix C); its parameters are
-            then not in any optimizer group. Unset: frozen, except in ``laptop`` (a random tower must learn).
-        text_hidden_size: tiny LLM hidden size d (``name_or_path=None`` only; pretrained models bring their
-        own).
-        text_num_layers: tiny LLM depth m.
-        text_num_heads: tiny LLM attention heads.
-        text_intermediate_size: tiny LLM MLP width.
-        vision_hidden_size: tiny vision-encoder width.
-        vision_num_layers: tiny vision-encoder depth.
-        vision_num_heads: tiny vision-encoder attention heads.
-        image_size: tiny vision-encoder input size (pixels, square); camera images are resized to it.
-        patch_size: tiny vision-encoder patch size (image_size must be a multiple of it).
-        max_instruction_tokens: instructions are padded/truncated to this many tokens by the preprocessor.
-        torch_dtype: dtype of the backbone weights (``float32``, ``bfloat16``, ``float16``); the heads stay
-            float32. Train in float32 with ``--policy.dtype=bfloat16`` (mixed precision); bf16 weights suit
-            inference only.
+    Each field's help is the comment above it: ``--help`` shows it.
     """
 
+    # Hugging Face id or local directory of a LLaVA-architecture checkpoint (`llava-hf/llava-1.5-7b-hf` in the
+    # paper). `None` builds a randomly initialised tiny LLaVA from the `text_*`/`vision_*` dimensions below
+    # (no download).
     name_or_path: str | None = None
+    # k, the LLM layer whose hidden states H[k] feed the cross-attention. `None` means k = m // 2 (m = number
+    # of LLM layers), the paper's choice; it is resolved from the loaded model.
     layer: int | None = None
+    # keep the vision encoder frozen (paper section 5, appendix C); its parameters are then not in any
+    # optimizer group. Unset: frozen, except in `laptop` (a random tower must learn).
     freeze_vision_tower: bool | None = None
     # Tiny architecture (only with name_or_path=None).
+    # tiny LLM hidden size d (`name_or_path=None` only; pretrained models bring their own).
     text_hidden_size: int | None = None
+    # tiny LLM depth m.
     text_num_layers: int | None = None
+    # tiny LLM attention heads.
     text_num_heads: int | None = None
+    # tiny LLM MLP width.
     text_intermediate_size: int | None = None
+    # tiny vision-encoder width.
     vision_hidden_size: int | None = None
+    # tiny vision-encoder depth.
     vision_num_layers: int | None = None
+    # tiny vision-encoder attention heads.
     vision_num_heads: int | None = None
+    # tiny vision-encoder input size (pixels, square); camera images are resized to it.
     image_size: int | None = None
+    # tiny vision-encoder patch size (image_size must be a multiple of it).
     patch_size: int | None = None
     # Tokenisation and precision.
+    # instructions are padded/truncated to this many tokens by the preprocessor.
     max_instruction_tokens: int | None = None
+    # dtype of the backbone weights (`float32`, `bfloat16`, `float16`); the heads stay float32. Train in
+    # float32 with `--policy.dtype=bfloat16` (mixed precision); bf16 weights suit inference only.
     torch_dtype: str | None = None
 
     @property
@@ -110,16 +108,16 @@ class CrossAttentionConfig:
 
     Its width is the backbone's hidden size d (queries are projected into the vision-language space).
 
-    Attributes:
-        num_layers: stacked pre-norm cross-attention + MLP blocks (3 in table 5).
-        num_heads: attention heads (8 in table 5); must divide the backbone hidden size.
-        mlp_ratio: MLP width as a multiple of d.
-        dropout: dropout on attention weights and MLP outputs (the paper uses dropout, rate not given).
+    Each field's help is the comment above it: ``--help`` shows it.
     """
 
+    # stacked pre-norm cross-attention + MLP blocks (3 in table 5).
     num_layers: int | None = None
+    # attention heads (8 in table 5); must divide the backbone hidden size.
     num_heads: int | None = None
+    # MLP width as a multiple of d.
     mlp_ratio: float = 4.0
+    # dropout on attention weights and MLP outputs (the paper uses dropout, rate not given).
     dropout: float | None = None
 
     def validate(self, name: str) -> None:
@@ -135,40 +133,37 @@ class CrossAttentionConfig:
 class DiTHeadConfig:
     """One diffusion-transformer head: the subgoal planner or the action generator (appendix B, tables 6-8).
 
-    Attributes:
-        hidden_size: DiT width (768 for DiT-B).
-        depth: number of adaLN-zero DiT blocks (12 for DiT-B).
-        num_heads: self-attention heads (12 for DiT-B, table 5).
-        mlp_ratio: MLP width as a multiple of hidden_size.
-        num_train_timesteps: T, diffusion timesteps of the squared-cosine schedule (8, tables 6-7).
-        num_inference_steps: DDIM sampling steps (<= num_train_timesteps; see the module docstring).
-        guidance_scale: classifier-free guidance scale s (1.0 disables CFG; the paper uses s > 1 for the
-        planner).
-            Unset: 1.5 for the planner, 1.0 for the generator (module docstring).
-        label_dropout: probability of replacing the conditioning by the learned null condition during training
-            (0.1, appendix B.1); enables CFG.
-        l2_weight: lambda of the L2 penalty on the predicted noise (0.001, appendix B.1).
-        repeated_diffusion_steps: timesteps sampled per training example ("repeated diffusion steps" 8, table
-        8;
-            4 in ``laptop``, where the heads dominate a CPU update).
-        clip_sample_range: bound on DDIM's estimate of the clean sample, in normalised units (diffusers
-            ``clip_sample_range``). Needed: the 8-step squared-cosine schedule ends at alpha_bar = 3.7e-5, so
-            the first DDIM step divides the noise-prediction error by sqrt(alpha_bar) (163x). Unset: 1.0 when
-            the head's target is MIN_MAX-normalised (it then lies in [-1, 1]: actions by default), else 4.0
-            (z-scores: the trace under the default MEAN_STD state normalisation). Added by policy-core
-            (model.py resolves it).
+    Each field's help is the comment above it: ``--help`` shows it.
     """
 
+    # DiT width (768 for DiT-B).
     hidden_size: int | None = None
+    # number of adaLN-zero DiT blocks (12 for DiT-B).
     depth: int | None = None
+    # self-attention heads (12 for DiT-B, table 5).
     num_heads: int | None = None
+    # MLP width as a multiple of hidden_size.
     mlp_ratio: float = 4.0
+    # T, diffusion timesteps of the squared-cosine schedule (8, tables 6-7).
     num_train_timesteps: int = 8
+    # DDIM sampling steps (<= num_train_timesteps; see the module docstring).
     num_inference_steps: int = 8
+    # classifier-free guidance scale s (1.0 disables CFG; the paper uses s > 1 for the planner). Unset: 1.5
+    # for the planner, 1.0 for the generator (module docstring).
     guidance_scale: float | None = None
+    # probability of replacing the conditioning by the learned null condition during training (0.1, appendix
+    # B.1); enables CFG.
     label_dropout: float = 0.1
+    # lambda of the L2 penalty on the predicted noise (0.001, appendix B.1).
     l2_weight: float = 0.001
+    # timesteps sampled per training example ("repeated diffusion steps" 8, table 8; 4 in `laptop`, where the
+    # heads dominate a CPU update).
     repeated_diffusion_steps: int | None = None
+    # bound on DDIM's estimate of the clean sample, in normalised units (diffusers `clip_sample_range`).
+    # Needed: the 8-step squared-cosine schedule ends at alpha_bar = 3.7e-5, so the first DDIM step divides
+    # the noise-prediction error by sqrt(alpha_bar) (163x). Unset: 1.0 when the head's target is MIN_MAX-
+    # normalised (it then lies in [-1, 1]: actions by default), else 4.0 (z-scores: the trace under the
+    # default MEAN_STD state normalisation). Added by policy-core (model.py resolves it).
     clip_sample_range: float | None = None
 
     def validate(self, name: str) -> None:

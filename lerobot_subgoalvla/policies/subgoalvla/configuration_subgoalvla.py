@@ -32,7 +32,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from lerobot.configs import NormalizationMode, PreTrainedConfig
+from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 from lerobot.optim import AdamWConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
@@ -70,92 +70,92 @@ TORCH_DTYPES = ("float32", "bfloat16", "float16")
 class SubgoalVLAConfig(PreTrainedConfig):
     """SubgoalVLA: VLM backbone -> proprioceptive cross-attention -> DiT planner -> DiT action generator.
 
-    Attributes:
-        preset: architecture preset, ``tiny`` | ``small`` | ``paper`` (module docstring); explicit flags win.
-        backbone: the vision-language backbone (:class:`BackboneConfig`).
-        planner_attention: PCA producing the planner's conditioning f^{c,g} from the state history.
-        generator_attention: PCA producing the generator's conditioning f^{c,a} from [history, trace].
-        planner: DiT subgoal planner psi (appendix B.1).
-        generator: DiT action generator phi (appendix B.2).
-        state_history_len: h, proprioceptive states in S_t (15, tables 6-7); must match the dataset's
-            ``observation.state_history``.
-        subgoal_trace_len: M, trace steps the planner predicts (8, appendix A); 1 is the "w/o ST" ablation
-            (the first trace step only). The dataset's trace must have at least this many steps.
-        chunk_size: N, actions predicted per chunk (15, table 7).
-        n_action_steps: actions executed from each predicted chunk before predicting the next one.
-        feature_aggregation: how vision-language tokens are aggregated (table 4): ``proprio_xattn`` (PCA, the
-            method), ``mean`` / ``max`` (top-k tokens by similarity to the mean / by norm), ``attn`` (learned
-            query scores, top-k); appendix D.1.
-        aggregation_top_k: k tokens kept by the ``mean``/``max``/``attn`` aggregations.
-        use_planner: False is the "w/o SP" ablation: no planner, the generator conditions on the state history
-            and the vision-language features only.
-        stage: training stage at step 0: ``stage1`` (generator conditioned on ground-truth traces, everything
-            trained) or ``stage2`` (generator conditioned on traces sampled from the planner, backbone
-            frozen). Start a stage II run from a stage I checkpoint with ``--policy.path=<ckpt>
-            --policy.stage=stage2``.
-        stage2_start_step: with ``stage=stage1``, the optimizer step at which the same run switches to stage
-        II
-            (None: never). The policy counts steps in a saved buffer, so ``--resume=true`` continues in the
-            right stage. With ``stage=stage2`` every step is stage II, so a stage I checkpoint that had a
-            switch step can be continued with ``--policy.stage=stage2`` as it is.
-        optimizer_lr_projector: learning rate of the vision-to-language projector (1e-5, table 8), and of an
-            unfrozen vision tower.
-        optimizer_lr_llm: learning rate of the LLM (2e-5, table 8).
-        optimizer_lr_heads: learning rate of the PCA modules and both DiT heads (1e-4, table 8); also the
-            scheduler's peak.
-        optimizer_betas: AdamW betas.
-        optimizer_eps: AdamW epsilon.
-        optimizer_weight_decay: AdamW weight decay (0.01, table 8).
-        optimizer_grad_clip_norm: gradient-norm clipping threshold (not given in the paper).
-        scheduler_warmup_ratio: linear-warmup fraction of each training stage (0.05, table 8).
-        scheduler_decay_lr: the heads' learning rate at the end of each stage's cosine (3e-6, section 5); the
-        other
-            groups decay by the same factor. A stage I -> II switch restarts warmup and cosine
-            (``schedule.py``).
-        dtype: training precision read by ``lerobot-train``: ``bfloat16`` = accelerate bf16 mixed precision
-            (float32 weights, bf16 autocast), ``float32`` = full precision.
-        state_angle_dims: indices of the wrapping TCP Euler angles in ``observation.state`` (CALVIN: 3, 4, 5).
-        state_angle_home: the orientation those angles are measured from, radians (CALVIN's gripper pointing
-            down: roll pi); the model sees ``wrap(angle - home)``, continuous wherever the arm goes.
-        state_angle_scale: radians per normalised unit of those angles.
-        normalization_mapping: normalisation per feature type for LeRobot's normaliser. ``STATE`` must stay
-            ``IDENTITY``: the proprioception (state, history, trace) is normalised by the policy's own step
-            with the state's statistics and continuous angles (``proprio_normalization.py``).
+    Each field's help is the comment above it: ``--help`` shows it.
     """
 
+    # LeRobot's: observation steps per sample; SubgoalVLA reads one frame (its history is a dataset column).
+    n_obs_steps: int = 1
+    # LeRobot's: filled from the dataset by lerobot-train (cameras, state, history, trace); leave unset.
+    input_features: dict[str, PolicyFeature] | None = field(default_factory=dict)
+    # LeRobot's: filled from the dataset by lerobot-train (the action); leave unset.
+    output_features: dict[str, PolicyFeature] | None = field(default_factory=dict)
+    # LeRobot's: Hub repo id the trained policy is pushed to (with --policy.push_to_hub=true).
+    repo_id: str | None = None
+    # architecture and training-recipe preset: tiny | laptop | small | paper (module docstring); flags win.
     preset: str = "tiny"
+    # the vision-language backbone (:class:`BackboneConfig`).
     backbone: BackboneConfig = field(default_factory=BackboneConfig)
+    # PCA producing the planner's conditioning f^{c,g} from the state history.
     planner_attention: CrossAttentionConfig = field(default_factory=CrossAttentionConfig)
+    # PCA producing the generator's conditioning f^{c,a} from [history, trace].
     generator_attention: CrossAttentionConfig = field(default_factory=CrossAttentionConfig)
+    # DiT subgoal planner psi (appendix B.1).
     planner: DiTHeadConfig = field(default_factory=DiTHeadConfig)
+    # DiT action generator phi (appendix B.2).
     generator: DiTHeadConfig = field(default_factory=DiTHeadConfig)
 
+    # h, proprioceptive states in S_t (15, tables 6-7); must match the dataset's `observation.state_history`.
     state_history_len: int = 15
+    # M, trace steps the planner predicts (8, appendix A); 1 is the "w/o ST" ablation (the first trace step
+    # only). The dataset's trace must have at least this many steps.
     subgoal_trace_len: int = 8
+    # N, actions predicted per chunk (15, table 7).
     chunk_size: int = 15
+    # actions executed from each predicted chunk before predicting the next one.
     n_action_steps: int = 8
 
+    # how vision-language tokens are aggregated (table 4): `proprio_xattn` (PCA, the method), `mean` / `max`
+    # (top-k tokens by similarity to the mean / by norm), `attn` (learned query scores, top-k); appendix D.1.
     feature_aggregation: str = "proprio_xattn"
+    # k tokens kept by the `mean`/`max`/`attn` aggregations.
     aggregation_top_k: int = 32
+    # False is the "w/o SP" ablation: no planner, the generator conditions on the state history and the
+    # vision-language features only.
     use_planner: bool = True
 
+    # training stage at step 0: `stage1` (generator conditioned on ground-truth traces, everything trained) or
+    # `stage2` (generator conditioned on traces sampled from the planner, backbone frozen). Start a stage II
+    # run from a stage I checkpoint with `--policy.path=<ckpt> --policy.stage=stage2`.
     stage: str = "stage1"
+    # with `stage=stage1`, the optimizer step at which the same run switches to stage II (None: never). The
+    # policy counts steps in a saved buffer, so `--resume=true` continues in the right stage. With
+    # `stage=stage2` every step is stage II, so a stage I checkpoint that had a switch step can be continued
+    # with `--policy.stage=stage2` as it is.
     stage2_start_step: int | None = None
 
+    # learning rate of the vision-to-language projector (1e-5, table 8), and of an unfrozen vision tower.
     optimizer_lr_projector: float | None = None
+    # learning rate of the LLM (2e-5, table 8).
     optimizer_lr_llm: float | None = None
+    # learning rate of the PCA modules and both DiT heads (1e-4, table 8); also the scheduler's peak.
     optimizer_lr_heads: float | None = None
+    # AdamW betas.
     optimizer_betas: tuple[float, float] = (0.9, 0.999)
+    # AdamW epsilon.
     optimizer_eps: float = 1e-8
+    # AdamW weight decay (0.01, table 8).
     optimizer_weight_decay: float = 0.01
+    # gradient-norm clipping threshold (not given in the paper).
     optimizer_grad_clip_norm: float = 1.0
+    # linear-warmup fraction of each training stage (0.05, table 8).
     scheduler_warmup_ratio: float | None = None
+    # the heads' learning rate at the end of each stage's cosine (3e-6, section 5); the other groups decay by
+    # the same factor. A stage I -> II switch restarts warmup and cosine (`schedule.py`).
     scheduler_decay_lr: float | None = None
+    # training precision read by `lerobot-train`: `bfloat16` = accelerate bf16 mixed precision (float32
+    # weights, bf16 autocast), `float32` = full precision.
     dtype: str | None = None
+    # indices of the wrapping TCP Euler angles in `observation.state` (CALVIN: 3, 4, 5).
     state_angle_dims: tuple[int, ...] = (3, 4, 5)
+    # the orientation those angles are measured from, radians (CALVIN's gripper pointing down: roll pi); the
+    # model sees `wrap(angle - home)`, continuous wherever the arm goes.
     state_angle_home: tuple[float, ...] = (math.pi, 0.0, 0.0)
+    # radians per normalised unit of those angles.
     state_angle_scale: float = 1.0
 
+    # normalisation per feature type for LeRobot's normaliser. `STATE` must stay `IDENTITY`: the
+    # proprioception (state, history, trace) is normalised by the policy's own step with the state's
+    # statistics and continuous angles (`proprio_normalization.py`).
     normalization_mapping: dict[str, NormalizationMode] = field(
         default_factory=lambda: {
             "VISUAL": NormalizationMode.IDENTITY,

@@ -51,13 +51,13 @@ class DiffusionObjective:
         (``DiTHeadConfig.num_train_timesteps``).
         num_inference_steps: DDIM steps at inference, at most T (``DiTHeadConfig.num_inference_steps``).
         beta_schedule: diffusers beta schedule name; "squaredcos_cap_v2" is the squared-cosine alpha-bar
-        schedule.
+            schedule.
         guidance_scale: classifier-free guidance scale s (1.0 = purely conditional, no extra forward pass).
         repeats: R, repeated diffusion steps per sample in training (8 in table 8).
         l2_weight: lambda of the l2 penalty on predictions (0.001 in appendix B.1).
         cond_dropout_prob: label dropout probability for classifier-free guidance (0.1 in appendix B.1).
         clip_sample_range: DDIM clips its clean-sample estimate to +-this (normalised units); None = no
-        clipping.
+            clipping.
     """
 
     def __init__(
@@ -163,7 +163,7 @@ class DiffusionObjective:
 
         Args:
             x: (B, T, X) current sample; timestep: () or (B,) step; cond (B, Tc, Dc); cond_mask (B, Tc) or
-            None.
+                None.
 
         Returns:
             (B, T, X) guided noise prediction.

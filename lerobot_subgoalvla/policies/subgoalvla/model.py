@@ -99,8 +99,7 @@ class SubgoalVLAModel(nn.Module):
     Args:
         config: the policy config; ``input_features[observation.state]`` gives p, ``action_feature`` gives A.
         backbone: an already built backbone to use instead of building ``config.backbone`` (e.g. an
-        architecture
-            instantiated on the meta device by the benchmark); None builds it from the config.
+            architecture instantiated on the meta device by the benchmark); None builds it from the config.
     """
 
     def __init__(self, config: SubgoalVLAConfig, backbone: VLMBackbone | None = None) -> None:
@@ -152,8 +151,7 @@ class SubgoalVLAModel(nn.Module):
 
         Args:
             batch: ``observation.images.static`` (B, 3, H, W) and ``observation.images.gripper`` (B, 3, h, w)
-            in
-                [0, 1]; ``observation.language.tokens`` (B, S); ``observation.language.attention_mask`` (B,
+                in [0, 1]; ``observation.language.tokens`` (B, S); ``observation.language.attention_mask`` (B,
                 S).
 
         Returns:
@@ -177,8 +175,7 @@ class SubgoalVLAModel(nn.Module):
             ``observation.subgoal_trace``
                 (B, >=M, p), ``action`` (B, N, A) and optionally ``action_is_pad`` (B, N) bool.
             stage: "stage1" (generator conditioned on the ground-truth trace) or "stage2" (on a planner
-            sample,
-                backbone frozen).
+                sample, backbone frozen).
             generator: RNG for timesteps, noise, label dropout and the stage-II trace sample.
 
         Returns:

@@ -66,8 +66,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
             features are checked against the data contract (trace and history are needed for training only),
             and a run that would end by pushing to the Hub fails now when the Hub is offline.
         **kwargs: the rest of LeRobot's factory arguments (``dataset_stats``): normalisation is the
-        processor's
-            job, so the policy does not use them.
+            processor's job, so the policy does not use them.
     """
 
     config_class = SubgoalVLAConfig

@@ -57,8 +57,7 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
         name_or_path: the backbone checkpoint (its tokenizer and image-token facts); None = the tiny backbone.
         max_length: instruction tokens kept (``BackboneConfig.max_instruction_tokens``).
         tiny_dims: ``TinyLlavaDims`` fields of the tiny backbone (None for a pretrained one); they fix the
-        number
-            of image placeholders.
+            number of image placeholders.
         task_key: complementary-data key holding the instruction(s).
     """
 
@@ -149,8 +148,7 @@ def make_subgoalvla_pre_post_processors(
         dataset_stats: the dataset's statistics; ``observation.state``'s normalise state, history and trace
             (``ProprioNormalizerProcessorStep``), the history/trace columns' own statistics are never used.
         dataset_meta: the training dataset's metadata, when LeRobot passes it: its features are checked
-        against
-            the data contract (one-line error naming the missing feature and the converter).
+            against the data contract (one-line error naming the missing feature and the converter).
 
     Returns:
         (preprocessor, postprocessor).

@@ -37,18 +37,16 @@ def warmup_cosine_factor(step: int, length: int, warmup_ratio: float, final_rati
 class TwoStageCosineSchedulerConfig(LRSchedulerConfig):
     """Warmup + cosine per training stage, restarted at the stage I -> II switch (module docstring).
 
-    Attributes:
-        num_warmup_steps: unused by this schedule (LeRobot's base field); the warmup is ``warmup_ratio`` of
-        each
-            stage.
-        warmup_ratio: fraction of each stage spent in linear warmup.
-        final_ratio: learning rate at the end of each stage as a fraction of the group's peak.
-        stage2_start_step: optimizer step of the stage switch (None: one stage over the whole run).
+    Each field's help is the comment above it: ``--help`` shows it.
     """
 
+    # unused by this schedule (LeRobot's base field); the warmup is `warmup_ratio` of each stage.
     num_warmup_steps: int | None = None
+    # fraction of each stage spent in linear warmup.
     warmup_ratio: float = 0.05
+    # learning rate at the end of each stage as a fraction of the group's peak.
     final_ratio: float = 0.03
+    # optimizer step of the stage switch (None: one stage over the whole run).
     stage2_start_step: int | None = None
 
     def phases(self, num_training_steps: int) -> list[tuple[int, int]]:

@@ -55,7 +55,7 @@ class EpisodeResult:
         chain_id: index of the chain in the chain list (``generate_chains(num_chains)``).
         tasks: the chain's task names, in order.
         num_completed: subtasks completed in a row before the first failure (0..len(tasks)); CALVIN's
-        "result".
+            "result".
         subtask_steps: env steps spent on each attempted subtask (the successful ones and the failed one), or
             None when unknown (results imported from ``eval_info.json``).
     """

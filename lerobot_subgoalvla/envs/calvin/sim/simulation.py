@@ -125,7 +125,7 @@ class CalvinSimulation:
 
         Args:
             robot_obs: (15,) state to restore (only [6] and [7:14] are used); ``None`` = default arm pose,
-            open.
+                open.
             scene_obs: (24,) state to restore; ``None`` = doors closed, lights off, random blocks (needs
                 ``np_random``).
             np_random: Generator for the random block placement (the caller's seeded ``np_random``).

@@ -1,4 +1,4 @@
-"""A bad --policy.* or --env.* value reaches users of LeRobot's CLIs as our one-line message, exit 1."""
+"""LeRobot's own CLIs on our plugin: bad values reach the user as one line; every flag has a help."""
 
 from __future__ import annotations
 
@@ -31,3 +31,22 @@ def test_bad_env_value_is_one_line_without_a_traceback() -> None:
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith("error: --env.scene='foo' is not valid; use one of: procedural, calvin_A")
     assert "ParsingError" not in result.stderr
+
+
+def test_every_policy_and_env_flag_has_a_one_line_help() -> None:
+    import re
+
+    result = _run(["lerobot-train", "--policy.type=subgoalvla", "--env.type=calvin", "--help"])
+    lines = result.stdout.splitlines()
+    flags, missing = 0, []
+    for i, line in enumerate(lines):
+        match = re.match(r"^  (--(?:policy|env)\.\S+)", line)
+        if not match:
+            continue
+        flags += 1
+        same_line = re.search(r"\S\s{2,}\S", line.strip())
+        next_line = i + 1 < len(lines) and re.match(r"^\s{20,}[^\s-]", lines[i + 1])
+        if not (same_line or next_line):
+            missing.append(match.group(1))
+    assert flags > 60 and not missing, f"flags without help: {missing}"
+    assert "------" not in result.stdout  # no section banners standing in for help
