@@ -98,7 +98,18 @@ def _prepare_partial(root: Path, record: dict, resume: bool, overwrite: bool) ->
     return partial
 
 
-def _run_parts(jobs: list[PartJob], workers: int, total_frames: int, desc: str) -> None:
+def quiet_libraries() -> None:
+    """Keep the libraries' chatter off the terminal: our progress bars and summary lines stay.
+
+    LeRobot's writer logs every codec choice and aggregation step and SVT-AV1 prints a multi-line banner per
+    encoded video (81 of 128 lines of a two-part conversion). Called in the main process and in each worker
+    (``--verbose`` skips it). Left: LeRobot's own progress bars and FFmpeg's one-line muxer notes.
+    """
+    os.environ.setdefault("SVT_LOG", "1")  # SVT-AV1: errors only
+    logging.getLogger("lerobot").setLevel(logging.WARNING)
+
+
+def _run_parts(jobs: list[PartJob], workers: int, total_frames: int, desc: str, quiet: bool = False) -> None:
     """Write the missing parts, in worker processes when ``workers > 1`` (spawned: LeRobot/torch are not
     fork-safe)."""
     todo = [job for job in jobs if not job.final_dir.is_dir()]
@@ -108,7 +119,8 @@ def _run_parts(jobs: list[PartJob], workers: int, total_frames: int, desc: str) 
             for job in todo:
                 progress.update(write_part(job))
             return
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+        initializer = quiet_libraries if quiet else None
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=initializer) as pool:
             for frames in pool.map(write_part, todo):
                 progress.update(frames)
 
@@ -154,6 +166,7 @@ def convert_split(
     resume: bool = False,
     overwrite: bool = False,
     verify: bool = False,
+    quiet: bool = False,
 ) -> LeRobotDataset:
     """Convert one native split into a LeRobotDataset at ``root`` (see the module docstring).
 
@@ -198,7 +211,7 @@ def convert_split(
         )
         for i in range(0, len(episodes), episodes_per_part)
     ]
-    _run_parts(jobs, workers, sum(ep.length for ep in episodes), desc=f"{split.name} ({options.mode})")
+    _run_parts(jobs, workers, sum(ep.length for ep in episodes), f"{split.name} ({options.mode})", quiet)
     merged = _finish(partial, repo_id, jobs, record)
     if verify:  # before the rename: a dataset that fails verification never appears at ROOT
         from lerobot_subgoalvla.datasets_conversion.verify_dataset import verify_dataset
@@ -275,6 +288,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--verify", action="store_true", help="reload and compare with the source")
     parser.add_argument("--resume", action="store_true", help="continue ROOT.partial from an interrupted run")
     parser.add_argument("--overwrite", action="store_true", help="delete ROOT and ROOT.partial first")
+    parser.add_argument(
+        "--verbose", action="store_true", help="keep LeRobot's, FFmpeg's and the AV1 encoder's own log lines"
+    )
     return parser.parse_args(argv)
 
 
@@ -283,7 +299,7 @@ def options_from_args(args: argparse.Namespace) -> dict:
     option_fields = ConversionOptions.__dataclass_fields__
     options = ConversionOptions(**{k: v for k, v in vars(args).items() if k in option_fields})
     passthrough = ("workers", "episodes_per_part", "max_episodes", "resume", "overwrite", "verify")
-    return {"options": options, **{k: getattr(args, k) for k in passthrough}}
+    return {"options": options, "quiet": not args.verbose, **{k: getattr(args, k) for k in passthrough}}
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -291,6 +307,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger().setLevel(logging.INFO)  # LeRobot may have installed the root handler already
     args = parse_args(argv)
+    if not args.verbose:
+        quiet_libraries()
     with user_errors(logger, "interrupted; rerun the same command with --resume to continue"):
         datasets = convert(
             args.src, args.repo_id, args.root, args.split, args.push_to_hub, **options_from_args(args)
