@@ -124,3 +124,24 @@ def test_pybullet_link_state_default_is_the_cached_transform() -> None:
         assert not np.allclose(stale, fresh, atol=1e-6)
     finally:
         pybullet.disconnect(client)
+
+
+@pytest.mark.calvin_assets
+def test_calvin_scene_loads_its_blocks_where_a_fresh_calvin_env_does(calvin_assets_dir) -> None:
+    """CALVIN samples the load poses from np_random(seed 0) in config order: surface, position, euler."""
+    sim = CalvinSimulation("calvin_D", assets_dir=calvin_assets_dir, cameras=False)
+    try:
+        rng = np.random.default_rng(0)  # gymnasium's np_random(0)
+        surfaces = sim.scene.source.surfaces
+        for uid in sim.scene.block_uids.values():  # slot order = the scene config's order
+            low, high = surfaces[str(rng.choice(list(surfaces)))]
+            expected_position = rng.uniform(low, high)
+            expected_euler = rng.uniform([0, 0, -np.pi], [0, 0, np.pi])
+            position, orientation = sim.client.getBasePositionAndOrientation(uid)
+            np.testing.assert_allclose(position, expected_position, atol=1e-9)
+            np.testing.assert_allclose(
+                orientation, sim.client.getQuaternionFromEuler(expected_euler.tolist()), atol=1e-9
+            )
+            assert np.all(np.array(position) >= np.array(low) - 1e-9)
+    finally:
+        sim.close()

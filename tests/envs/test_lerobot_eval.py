@@ -195,6 +195,11 @@ def test_lerobot_eval_with_a_tiny_subgoalvla_checkpoint(tmp_path: Path) -> None:
     )
     policy_dir = tmp_path / "policy"
     SubgoalVLAPolicy(config).save_pretrained(policy_dir)
-    for pipeline in make_subgoalvla_pre_post_processors(config, dataset_stats=None):
+    import torch
+
+    # The proprio normaliser needs the state's statistics (a training run takes them from the dataset).
+    stats = {"observation.state": {"mean": torch.zeros(15), "std": torch.ones(15)},
+             "action": {"min": -torch.ones(7), "max": torch.ones(7)}}  # fmt: skip
+    for pipeline in make_subgoalvla_pre_post_processors(config, dataset_stats=stats):
         pipeline.save_pretrained(policy_dir)
     _run_lerobot_eval_and_check(policy_dir, tmp_path, chains=(0, 2))

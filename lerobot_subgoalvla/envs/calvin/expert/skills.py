@@ -3,8 +3,9 @@
 The expert drives the TCP with CALVIN's *relative* actions (spec 1.6): ``rel[0:3] = dpos / 0.02`` and
 ``rel[3:6] = wrap(deuler) / 0.05``, each clipped to [-1, 1], gripper exactly +1 (open) / -1 (close). The sim
 adds these deltas to a target pose it keeps (spec 3.5), while this module computes them from the *measured*
-TCP pose (``robot_obs[0:6]``), like CALVIN's recorded ``rel_actions``: a proportional controller toward the
-current waypoint, speed-capped so that demonstrations look like teleoperation rather than jumps.
+TCP pose (the joints' current forward kinematics; ``robot_obs[0:6]`` reports it one physics sub-step late),
+like a teleoperator reacting to the robot: a proportional controller toward the current waypoint,
+speed-capped so that demonstrations look like teleoperation rather than jumps.
 
 Skills are Python generators that yield one (7,) action per control step and read the simulator's state
 between yields (closed loop): ``yield from servo(...)`` moves to a waypoint, ``yield from hold(...)`` waits
@@ -145,9 +146,13 @@ class SkillContext:
 
     # ---------------------------------------------------------------- state
     def tcp(self) -> tuple[np.ndarray, np.ndarray]:
-        """Measured TCP position (3,) and euler (3,) from ``robot_obs`` (spec 1.4)."""
-        obs = self.sim.robot_obs()
-        return obs[0:3].copy(), obs[3:6].copy()
+        """The TCP's position (3,) and euler angles (3,) now.
+
+        Privileged: recomputed from the joints, not ``robot_obs[0:6]``, which reports the pose one physics
+        sub-step late as CALVIN does (docs/calvin.md 3.7); the controller steers by the true pose.
+        """
+        position, orientation = self.sim.robot.tcp_pose(current=True)
+        return np.array(position), np.array(self.sim.client.getEulerFromQuaternion(orientation))
 
     def gripper_width(self) -> float:
         return float(self.sim.robot_obs()[6])

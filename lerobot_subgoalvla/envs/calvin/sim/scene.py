@@ -88,11 +88,16 @@ class Scene:
     def load(self) -> None:
         """Blocks in slot order, then the table, then the plane (spec 3.1: uids 2-4, 5, 6)."""
         c = self.client
+        load_poses = calvin_load_poses(self.source.surfaces, len(self.source.blocks))
         for slot, block in enumerate(self.source.blocks):
-            parking = (2.0 + slot, 2.0, 0.5)  # out of the way until reset places the blocks
-            if block.urdf is not None:
-                uid = c.loadURDF(str(block.urdf), parking, globalScaling=self.source.global_scaling)
+            if block.urdf is not None:  # CALVIN's scenes: where a fresh calvin_env loads them
+                position, yaw = load_poses[slot]
+                orientation = c.getQuaternionFromEuler((0.0, 0.0, yaw))
+                uid = c.loadURDF(
+                    str(block.urdf), position, orientation, globalScaling=self.source.global_scaling
+                )
             else:
+                parking = (2.0 + slot, 2.0, 0.5)  # our procedural blocks: out of the way until reset
                 half = [s / 2 for s in block.size]
                 shape = c.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half)
                 visual = c.createVisualShape(pybullet.GEOM_BOX, halfExtents=half, rgbaColor=block.rgba)
@@ -318,3 +323,26 @@ class Scene:
                 }
             },
         }
+
+
+def calvin_load_poses(
+    surfaces: dict[str, tuple[tuple[float, ...], tuple[float, ...]]], num_blocks: int, seed: int = 0
+) -> list[tuple[np.ndarray, float]]:
+    """Where calvin_env puts its blocks when it loads a scene: ``(position (3,), yaw)`` per block, slot order.
+
+    CALVIN's scene configs load every block at ``initial_pos: any`` / ``initial_orn: any``, drawn at
+    construction from the env's generator seeded with its config seed 0 (gymnasium-style ``np_random(0)``, a
+    PCG64 ``numpy.random.Generator``): per block a surface by ``choice`` over the scene's surfaces in config
+    order, a position ``uniform(low, high)`` in it, then euler angles ``uniform([0, 0, -pi], [0, 0, pi])``.
+    Resets place the blocks anew, but where they were loaded shapes pybullet's contact bookkeeping, so
+    bit-exact agreement with a fresh calvin_env needs the same load poses (docs/calvin.md 3.1).
+    """
+    rng = np.random.default_rng(seed)
+    names = list(surfaces)
+    poses = []
+    for _ in range(num_blocks):
+        low, high = surfaces[str(rng.choice(names))]
+        position = rng.uniform(low, high)
+        yaw = float(rng.uniform([0.0, 0.0, -np.pi], [0.0, 0.0, np.pi])[2])
+        poses.append((position, yaw))
+    return poses
