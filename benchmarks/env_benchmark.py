@@ -32,27 +32,9 @@ from pathlib import Path
 import numpy as np
 import pybullet
 
+from lerobot_subgoalvla.envs.calvin.evaluation.chain_scene import EVAL_ROBOT_OBS
 from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
-EVAL_ROBOT_OBS = np.array(
-    [
-        0.02586889,
-        -0.2313129,
-        0.5712808,
-        3.09045411,
-        -0.02908596,
-        1.50013585,
-        0.07999963,
-        -1.21779124,
-        1.03987629,
-        2.11978254,
-        -2.34205014,
-        -0.87015899,
-        1.64119093,
-        0.55344928,
-        1.0,
-    ]
-)
 CHAINS, SUBTASKS, MAX_STEPS = 1000, 5, 360
 
 

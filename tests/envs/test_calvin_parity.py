@@ -7,6 +7,8 @@ cached at the start of the last physics sub-step. These tests pin those formulas
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 import pybullet
 import pytest
@@ -19,8 +21,15 @@ from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 MOVE = np.array([1.0, 0.0, -1.0, 0.0, 0.0, 1.0, 1.0])  # full-speed relative action: the arm moves
 
 
-def _sim() -> CalvinSimulation:
-    return CalvinSimulation("procedural", static_size=16, gripper_size=16)
+@pytest.fixture
+def moving_sim() -> Iterator[CalvinSimulation]:
+    """A procedural simulation whose arm has moved at full speed for 5 steps (and is still moving)."""
+    sim = CalvinSimulation("procedural", static_size=16, gripper_size=16)
+    sim.reset(np_random=np.random.default_rng(0))
+    for _ in range(5):
+        sim.step(MOVE)
+    yield sim
+    sim.close()
 
 
 def _expert_scene_obs(task: str, seed: int, flag: int | None, steps: int = 120) -> np.ndarray:
@@ -48,28 +57,22 @@ def test_contact_determinism_flag_is_calvins_effective_zero(task: str, seed: int
     assert not np.array_equal(ours, _expert_scene_obs(task, seed, flag=1))  # the flag matters here
 
 
-def test_reported_tcp_is_the_cached_transform_one_substep_behind() -> None:
-    sim = _sim()
-    try:
-        sim.reset(np_random=np.random.default_rng(0))
-        for _ in range(5):
-            sim.step(MOVE)
-        robot, c = sim.robot, sim.client
-        obs, info_tcp = sim.robot_obs(), np.array(sim.get_info()["robot_info"]["tcp_pos"])
-        cached = c.getLinkState(robot.uid, robot.spec.tcp_link)  # CALVIN's call
-        # computeForwardKinematics=True refreshes pybullet's cache: query it last
-        current = c.getLinkState(robot.uid, robot.spec.tcp_link, computeForwardKinematics=True)
-        np.testing.assert_array_equal(obs[0:3], np.array(cached[0]))
-        np.testing.assert_array_equal(obs[3:6], np.array(c.getEulerFromQuaternion(cached[1])))
-        lag = np.linalg.norm(np.array(current[0]) - obs[0:3])
-        assert 1e-4 < lag < 5e-3  # moving at full speed: about a millimetre behind the joints
-        np.testing.assert_array_equal(info_tcp, obs[0:3])
-    finally:
-        sim.close()
+def test_reported_tcp_is_the_cached_transform_one_substep_behind(moving_sim: CalvinSimulation) -> None:
+    sim = moving_sim
+    robot, c = sim.robot, sim.client
+    obs, info_tcp = sim.robot_obs(), np.array(sim.get_info()["robot_info"]["tcp_pos"])
+    cached = c.getLinkState(robot.uid, robot.spec.tcp_link)  # CALVIN's call
+    # computeForwardKinematics=True refreshes pybullet's cache: query it last
+    current = c.getLinkState(robot.uid, robot.spec.tcp_link, computeForwardKinematics=True)
+    np.testing.assert_array_equal(obs[0:3], np.array(cached[0]))
+    np.testing.assert_array_equal(obs[3:6], np.array(c.getEulerFromQuaternion(cached[1])))
+    lag = np.linalg.norm(np.array(current[0]) - obs[0:3])
+    assert 1e-4 < lag < 5e-3  # moving at full speed: about a millimetre behind the joints
+    np.testing.assert_array_equal(info_tcp, obs[0:3])
 
 
 def test_reset_target_is_the_true_tcp() -> None:
-    sim = _sim()
+    sim = CalvinSimulation("procedural", static_size=16, gripper_size=16)
     try:
         sim.reset(np_random=np.random.default_rng(0))
         robot, c = sim.robot, sim.client
@@ -81,30 +84,24 @@ def test_reset_target_is_the_true_tcp() -> None:
         sim.close()
 
 
-def test_gripper_camera_is_posed_from_the_cached_transform() -> None:
-    sim = _sim()
-    try:
-        sim.reset(np_random=np.random.default_rng(0))
-        for _ in range(5):
-            sim.step(MOVE)
-        robot, c = sim.robot, sim.client
-        position, rotation = robot.camera_pose()
-        link = robot.spec.camera_link if robot.spec.camera_link is not None else HAND_LINK
-        cached = c.getLinkState(robot.uid, link)
-        current = c.getLinkState(robot.uid, link, computeForwardKinematics=True)  # refreshes the cache: last
-        moved = np.array(current[4]) - np.array(cached[4])
-        assert np.linalg.norm(moved) > 1e-4  # the cached transform is a sub-step behind
-        if robot.spec.camera_link is not None:
-            np.testing.assert_array_equal(position, np.array(cached[0]))
-        else:  # the procedural Panda has no camera link: cached hand transform + CALVIN's camera offset
-            offset_pos, offset_rpy = CAMERA_FROM_HAND
-            expected, _ = c.multiplyTransforms(
-                cached[4], cached[5], offset_pos, c.getQuaternionFromEuler(offset_rpy)
-            )
-            np.testing.assert_allclose(position, np.array(expected), atol=1e-12)
-        assert rotation.shape == (3, 3)
-    finally:
-        sim.close()
+def test_gripper_camera_is_posed_from_the_cached_transform(moving_sim: CalvinSimulation) -> None:
+    sim = moving_sim
+    robot, c = sim.robot, sim.client
+    position, rotation = robot.camera_pose()
+    link = robot.spec.camera_link if robot.spec.camera_link is not None else HAND_LINK
+    cached = c.getLinkState(robot.uid, link)
+    current = c.getLinkState(robot.uid, link, computeForwardKinematics=True)  # refreshes the cache: last
+    moved = np.array(current[4]) - np.array(cached[4])
+    assert np.linalg.norm(moved) > 1e-4  # the cached transform is a sub-step behind
+    if robot.spec.camera_link is not None:
+        np.testing.assert_array_equal(position, np.array(cached[0]))
+    else:  # the procedural Panda has no camera link: cached hand transform + CALVIN's camera offset
+        offset_pos, offset_rpy = CAMERA_FROM_HAND
+        expected, _ = c.multiplyTransforms(
+            cached[4], cached[5], offset_pos, c.getQuaternionFromEuler(offset_rpy)
+        )
+        np.testing.assert_allclose(position, np.array(expected), atol=1e-12)
+    assert rotation.shape == (3, 3)
 
 
 def test_pybullet_link_state_default_is_the_cached_transform() -> None:
