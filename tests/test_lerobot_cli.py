@@ -50,3 +50,33 @@ def test_every_policy_and_env_flag_has_a_one_line_help() -> None:
             missing.append(match.group(1))
     assert flags > 60 and not missing, f"flags without help: {missing}"
     assert "------" not in result.stdout  # no section banners standing in for help
+
+
+def test_the_plugin_module_registers_everything_in_a_fresh_interpreter() -> None:
+    """What LeRobot's discovery (and a user script) imports: policy, scheduler, processor steps and env."""
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(
+        """
+        import sys
+        import lerobot_subgoalvla
+        assert "torch" not in sys.modules  # the bare package stays light and registers nothing
+        import lerobot_subgoalvla.plugin
+        from lerobot.configs.policies import PreTrainedConfig
+        from lerobot.envs.configs import EnvConfig
+        from lerobot.optim.schedulers import LRSchedulerConfig
+        from lerobot.processor import ProcessorStepRegistry
+        assert PreTrainedConfig.get_choice_class("subgoalvla").__name__ == "SubgoalVLAConfig"
+        assert EnvConfig.get_choice_class("calvin").__name__ == "CalvinEnvConfig"
+        assert LRSchedulerConfig.get_choice_class("subgoalvla_two_stage_cosine")
+        for name in ("subgoalvla_tokenizer_processor", "subgoalvla_proprio_normalizer"):
+            assert ProcessorStepRegistry.get(name)
+        assert "transformers.models.llava" not in sys.modules  # the model loads only when a policy is built
+        print("ok")
+        """
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, env=ENV, timeout=300
+    )
+    assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stderr[-2000:]

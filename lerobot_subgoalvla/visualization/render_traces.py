@@ -122,7 +122,7 @@ def load_policy(policy_path: str | Path) -> tuple[Any, Any, Any]:
     Raises:
         FileNotFoundError: ``policy_path`` is not a checkpoint directory (no ``config.json``).
     """
-    import lerobot_subgoalvla  # noqa: F401  (registers the policy type before the config is parsed)
+    import lerobot_subgoalvla.plugin  # noqa: F401  (registers the policy type before the config is parsed)
 
     path = Path(policy_path)
     if not (path / "config.json").is_file():
