@@ -125,6 +125,7 @@ class CalvinEnv(gym.Env):
         self.action_space = self._make_action_space()
 
         self._sim: CalvinSimulation | None = None
+        self._loaded_state = -1  # pybullet state id of the freshly loaded world (made with the simulator)
         self._oracle = TaskOracle()
         self._subtasks: tuple[str, ...] = () if self.is_chain_mode else (task,)
         self._chain_id: int | None = None
@@ -219,6 +220,10 @@ class CalvinEnv(gym.Env):
                 action_mode=self.action_mode,
                 renderer=self.renderer,
             )
+            # Every episode starts from the just-loaded world, as in a fresh calvin_env: pybullet keeps
+            # contact caches across resets, so without this a first reset(seed) differs from later ones.
+            self._loaded_state = self._sim.client.saveState()
+        self._sim.client.restoreState(stateId=self._loaded_state)
         # CALVIN keeps the previous episode's gripper command across resets (spec 3.8), so robot_obs[14] of
         # the first frame would depend on episode order. Reset it to the start state's (open unless robot_obs
         # says otherwise): the same seed then gives the same episode, and chain shards are order-independent.
