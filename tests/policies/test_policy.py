@@ -211,3 +211,21 @@ def test_save_load_is_exact_and_actions_match(
     actual = reloaded.predict_action_chunk(obs)
     assert torch.equal(expected, actual)
     assert not torch.equal(expected[0], expected[1])  # actions depend on the observation
+
+
+def test_cameras_of_another_size_than_in_training_are_reported_once(
+    make_config, make_policy_and_processors, raw_batch, caplog
+) -> None:
+    import logging
+
+    import torch.nn.functional as F  # noqa: N812
+
+    policy, pre, _ = make_policy_and_processors(make_config())
+    policy.eval()
+    obs = inference_observation(pre(dict(raw_batch)))
+    obs = {**obs, "observation.images.static": F.interpolate(obs["observation.images.static"], size=(40, 40))}
+    with caplog.at_level(logging.WARNING):
+        policy.select_action(obs)
+        policy.select_action(obs)
+    warnings = [r.getMessage() for r in caplog.records if "trained on" in r.getMessage()]
+    assert len(warnings) == 1 and "observation.images.static is 40x40" in warnings[0]

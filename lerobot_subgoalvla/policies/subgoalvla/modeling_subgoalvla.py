@@ -34,6 +34,7 @@ from typing import Any
 
 import torch
 from huggingface_hub import is_offline_mode
+from lerobot.configs import FeatureType
 from lerobot.policies import PreTrainedPolicy
 from torch import Tensor
 
@@ -88,6 +89,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         self.register_buffer("optimizer_steps", torch.zeros((), dtype=torch.long))
         self._history = StateHistoryBuffer(config.state_history_len)
         self._queue: deque[Tensor] = deque(maxlen=config.n_action_steps)
+        self._image_sizes_checked = False
         self.reset()
 
     # Training -----------------------------------------------------------------------------------------------
@@ -209,12 +211,28 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         """The next action (B, A): pops the queue, predicting a new chunk (one backbone pass) when it is
         empty."""
         state = batch[STATE_KEY]  # (B, p), normalised by the preprocessor
+        if not self._image_sizes_checked:
+            self._image_sizes_checked = True
+            self._warn_on_other_image_sizes(batch)
         self._on_new_step(batch, state.shape[0])
         history = self._history.push(state)  # (B, h, p), every step, so the history has no gaps
         if not self._queue:
             chunk = self.predict_action_chunk({**batch, STATE_HISTORY_KEY: history})  # (B, N, A)
             self._queue.extend(chunk[:, : self.config.n_action_steps].transpose(0, 1))  # n x (B, A)
         return self._queue.popleft()
+
+    def _warn_on_other_image_sizes(self, batch: dict[str, Tensor]) -> None:
+        """Say it once when the cameras differ in size from the training data: the model resizes them to its
+        vision tower anyway, but objects then appear at another scale than in training."""
+        for key, feature in self.config.input_features.items():
+            if key in batch and feature.type is FeatureType.VISUAL and batch[key].ndim == 4:
+                trained, seen = tuple(feature.shape[-2:]), tuple(batch[key].shape[-2:])  # (H, W)
+                if trained != seen:
+                    logger.warning(
+                        "%s is %dx%d but the policy was trained on %dx%d images; evaluate with the training "
+                        "sizes (e.g. --env.static_image_size / --env.gripper_image_size)",
+                        key, *seen, *trained,
+                    )  # fmt: skip
 
     # Hub ----------------------------------------------------------------------------------------------------
     @classmethod
