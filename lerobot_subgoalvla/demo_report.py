@@ -122,7 +122,7 @@ def read_task_results(eval_dir: Path) -> dict[str, dict[str, Any]]:
 
 
 def _save(fig: Any, path: Path) -> None:
-    from lerobot_subgoalvla.envs.calvin.evaluation.results import atomic_write
+    from lerobot_subgoalvla.atomic_files import atomic_write
 
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png")

@@ -16,9 +16,7 @@ Dimension legend:
 
 from __future__ import annotations
 
-import os
 import pickle
-import tempfile
 import zipfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -28,6 +26,7 @@ from zlib import error as zlib_error
 import numpy as np
 import yaml
 
+from lerobot_subgoalvla.atomic_files import atomic_write
 from lerobot_subgoalvla.calvin_vocab import check_task_name
 
 SPLITS: tuple[str, ...] = ("training", "validation")
@@ -292,26 +291,22 @@ class CalvinSplit:
         Returns:
             ``{key: (F, ...) array}`` in the files' own dtypes.
         """
-        frames = [check_frame(self.frame_path(i), keys) for i in frame_ids]
+        ids = list(frame_ids)
+        frames = [check_frame(self.frame_path(i), keys) for i in ids]
+        for key in keys:
+            for frame_id, frame in zip(ids[1:], frames[1:], strict=True):
+                if frame[key].shape != frames[0][key].shape:
+                    raise ValueError(
+                        f"{self.frame_path(frame_id)}: {key!r} is {frame[key].shape} but "
+                        f"{self.frame_path(ids[0]).name} has {frames[0][key].shape}; every frame of a split "
+                        "needs the same image sizes (re-export it, or convert the splits separately)"
+                    )
         return {key: np.stack([frame[key] for frame in frames]) for key in keys}  # (F, ...)
 
 
 # --------------------------------------------------------------------------------------------------
 # Writer
 # --------------------------------------------------------------------------------------------------
-
-
-def _atomic_write(path: Path, write) -> None:
-    """Write through ``write(fileobj)`` into a temporary file beside ``path``, then rename it into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            write(handle)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def write_frame(split_dir: Path, frame_id: int, arrays: Mapping[str, np.ndarray]) -> Path:
@@ -321,7 +316,7 @@ def write_frame(split_dir: Path, frame_id: int, arrays: Mapping[str, np.ndarray]
         value = np.asarray(value)
         if value.dtype.kind == "f" and not np.isfinite(value).all():
             raise ValueError(f"{path}: refusing to write non-finite values in key {key!r}")
-    _atomic_write(
+    atomic_write(
         path, lambda handle: np.savez_compressed(handle, **{k: np.asarray(v) for k, v in arrays.items()})
     )
     return path
@@ -329,7 +324,7 @@ def write_frame(split_dir: Path, frame_id: int, arrays: Mapping[str, np.ndarray]
 
 def write_npy(path: Path, value: object) -> None:
     """``np.save`` atomically (pickled dicts via ``allow_pickle``, as CALVIN stores them)."""
-    _atomic_write(Path(path), lambda handle: np.save(handle, value, allow_pickle=True))
+    atomic_write(Path(path), lambda handle: np.save(handle, value, allow_pickle=True))
 
 
 def write_segments(split_dir: Path, segments: np.ndarray) -> None:
@@ -375,4 +370,4 @@ def compute_statistics(robot_obs: np.ndarray, scene_obs: np.ndarray, actions: np
 def write_statistics(split_dir: Path, statistics: Mapping) -> None:
     """``statistics.yaml`` (atomic)."""
     text = yaml.safe_dump(dict(statistics), sort_keys=False).encode()
-    _atomic_write(Path(split_dir) / STATISTICS_FILE, lambda handle: handle.write(text))
+    atomic_write(Path(split_dir) / STATISTICS_FILE, lambda handle: handle.write(text))

@@ -175,6 +175,10 @@ def convert_split(
     """
     from lerobot.datasets import LeRobotDataset
 
+    if episodes_per_part < 1:
+        raise ValueError(f"--episodes-per-part must be >= 1, got {episodes_per_part}")
+    if max_episodes is not None and max_episodes < 1:
+        raise ValueError(f"--max-episodes must be >= 1 (or left out for all), got {max_episodes}")
     refuse_overlap(root, "--root", Path(split_dir), "the split folder")
     refuse_overlap(
         root.with_name(root.name + ".partial"), "--root (its .partial)", Path(split_dir), "the split"

@@ -85,8 +85,12 @@ class GeneratorOptions:
             raise ValueError("--tasks needs at least one CALVIN task name")
         for task in self.tasks:
             check_task_name(task)
-        if self.num_tasks < 1 or self.tasks_per_segment < 1:
-            raise ValueError("--num-tasks and --tasks-per-segment must be >= 1")
+        positive = {"--num-tasks": self.num_tasks, "--tasks-per-segment": self.tasks_per_segment,
+                    "--max-steps-per-task": self.max_steps_per_task, "--static-size": self.static_size,
+                    "--gripper-size": self.gripper_size}  # fmt: skip
+        for flag, value in positive.items():
+            if value < 1:
+                raise ValueError(f"{flag} must be >= 1, got {value}")
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"--val-fraction must be in [0, 1), got {self.val_fraction}")
         if self.val_fraction > 0 and len(self.segment_tasks()) < 2:
@@ -226,6 +230,9 @@ def generate(output: Path, opts: GeneratorOptions, workers: int = 1) -> dict[str
     if opts.assets_dir is not None:
         refuse_overlap(output, "--output", Path(opts.assets_dir), "the calvin_env clone (--assets-dir)")
     splits = [name for name in SPLITS if name == "training" or opts.val_fraction > 0]  # no empty validation
+    from lerobot_subgoalvla.envs.calvin.sim.assets import load_scene_source
+
+    load_scene_source(opts.scene, opts.assets_dir)  # scene name and files, before anything is written
     segments_dir = output / SEGMENTS_DIR
     existing = [name for name in SPLITS if (output / name).exists()]
     if existing and not segments_dir.is_dir():  # an unfinished run of ours keeps SEGMENTS_DIR to the very end

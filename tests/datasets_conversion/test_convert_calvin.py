@@ -279,3 +279,40 @@ def test_parallel_workers_give_the_same_dataset(source: Path, tmp_path: Path) ->
     got, want = _dataset_arrays(parallel["training"]), _dataset_arrays(serial)
     for key in want:
         np.testing.assert_array_equal(got[key], want[key], err_msg=key)
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--episodes-per-part", "0"], "--episodes-per-part must be >= 1"),
+        (["--max-episodes", "0"], "--max-episodes"),
+    ],
+)
+def test_part_and_episode_counts_must_be_positive(
+    source: Path, tmp_path: Path, caplog, flags, message
+) -> None:
+    argv = [
+        str(source),
+        "--repo-id",
+        "local/x",
+        "--image-format",
+        "image",
+        "--root",
+        str(tmp_path / "o"),
+        *flags,
+    ]
+    assert message in _run_main(argv, caplog)
+    assert not (tmp_path / "o").exists() and not (tmp_path / "o.partial").exists()
+
+
+def test_frames_of_different_image_sizes_name_the_file(tmp_path: Path, caplog) -> None:
+    src = tmp_path / "src"
+    write_native_split(src / "training", [(0, 9)], (), None, static=64, gripper=64)
+    path = src / "training" / frame_filename(4)
+    with np.load(path) as npz:
+        arrays = dict(npz)
+    arrays["rgb_static"] = np.zeros((32, 32, 3), dtype=np.uint8)
+    np.savez_compressed(path, **arrays)
+    argv = [str(src), "--repo-id", "local/x", "--mode", "all", "--image-format", "image"]
+    message = _run_main([*argv, "--root", str(tmp_path / "o")], caplog)
+    assert "episode_0000004.npz: 'rgb_static' is (32, 32, 3)" in message and "same image sizes" in message

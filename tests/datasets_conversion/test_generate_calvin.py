@@ -205,3 +205,18 @@ def test_cli_failures_are_one_line(tmp_path: Path, caplog: pytest.LogCaptureFixt
         assert info.value.code == code
         errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
         assert len(errors) == 1 and "\n" not in errors[0] and text in errors[0]
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"max_steps_per_task": 0}, "--max-steps-per-task must be >= 1"),
+        ({"static_size": 0}, "--static-size must be >= 1"),
+        ({"scene": "calvin_D", "assets_dir": "/nonexistent"}, "CALVIN asset missing"),
+    ],
+)
+def test_options_are_checked_before_anything_is_written(tmp_path: Path, changes: dict, message: str) -> None:
+    base = {"num_tasks": 1, "seed": 0, "val_fraction": 0.0, "tasks_per_segment": 1, "tasks": ("turn_on_led",)}
+    with pytest.raises((ValueError, FileNotFoundError), match=message):
+        generate(tmp_path / "out", GeneratorOptions(**{**base, **changes}))
+    assert not (tmp_path / "out").exists()  # the corrected rerun is not blocked by a half-written output

@@ -136,3 +136,12 @@ def test_gymnasium_make_builds_a_calvin_env() -> None:
     assert env.unwrapped.task_description == "pull the handle to open the drawer"
     assert env.get_wrapper_attr("_max_episode_steps") == 5
     env.close()
+
+
+def test_paths_are_checked_when_the_config_is_made(tmp_path) -> None:
+    with pytest.raises(ConfigError, match="--env.assets_dir: CALVIN asset missing"):
+        CalvinEnvConfig(scene="calvin_D", assets_dir=str(tmp_path))
+    (tmp_path / "a_file").write_text("x")
+    with pytest.raises(ConfigError, match="--env.results_path=.*cannot write there"):
+        CalvinEnvConfig(results_path=str(tmp_path / "a_file" / "results.jsonl"))
+    CalvinEnvConfig(results_path=str(tmp_path / "new" / "results.jsonl"))  # a folder still to be made is fine

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
+from lerobot_subgoalvla.atomic_files import atomic_write
 from lerobot_subgoalvla.envs.calvin.evaluation.results import (
     EpisodeResult,
     append_episode_result,
-    atomic_write,
     episode_results_from_eval_info,
     merge_results,
     read_episode_results,
@@ -107,4 +107,8 @@ def test_atomic_write(tmp_path: Path) -> None:
     atomic_write(target, b"\x00\x01")
     atomic_write(target, "text")
     assert target.read_text() == "text"
+    assert target.stat().st_mode & 0o044  # readable by others (mkstemp alone makes 0600 files)
     assert [p.name for p in target.parent.iterdir()] == ["file.bin"]
+    other = tmp_path / "other.bin"
+    atomic_write(other, lambda handle: handle.write(b"xyz"))  # a writer function
+    assert other.read_bytes() == b"xyz"

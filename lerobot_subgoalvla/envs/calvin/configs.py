@@ -16,8 +16,10 @@ of worker processes) per thread serves all chains, instead of 1000 of them being
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 from lerobot.configs import FeatureType, PolicyFeature
@@ -143,6 +145,25 @@ class CalvinEnvConfig(EnvConfig):
         for name in ("episode_length", "static_image_size", "gripper_image_size"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"--env.{name}={getattr(self, name)} must be a positive integer")
+        self._validate_paths()
+
+    def _validate_paths(self) -> None:
+        """Files are checked now, not after the policy has loaded or the rollout has run."""
+        if self.scene != "procedural":
+            from lerobot_subgoalvla.envs.calvin.sim.assets import load_scene_source  # light: yaml + paths
+
+            try:
+                load_scene_source(self.scene, self.assets_dir)
+            except (FileNotFoundError, ValueError) as error:
+                raise ConfigError(f"--env.assets_dir: {error}") from None
+        if self.results_path is not None:
+            folder = Path(self.results_path).expanduser().resolve().parent
+            existing = next((p for p in (folder, *folder.parents) if p.exists()), None)
+            if existing is None or not existing.is_dir() or not os.access(existing, os.W_OK):
+                raise ConfigError(
+                    f"--env.results_path={self.results_path}: cannot write there (nearest existing folder "
+                    f"{existing} is not a writable directory); choose a writable path"
+                )
 
     @property
     def chain_ids(self) -> range:

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from lerobot_subgoalvla.atomic_files import atomic_write
 from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS, TASK_NAMES, check_task_name
 from lerobot_subgoalvla.cli_errors import user_errors
 
@@ -56,7 +57,6 @@ from lerobot_subgoalvla.envs.calvin.evaluation.chain_scene import (
 from lerobot_subgoalvla.envs.calvin.evaluation.results import (
     EpisodeResult,
     append_episode_result,
-    atomic_write,
     episode_results_from_eval_info,
     merge_results,
     read_episode_results,

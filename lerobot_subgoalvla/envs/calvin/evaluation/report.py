@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from lerobot_subgoalvla.atomic_files import atomic_write
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
 from lerobot_subgoalvla.cli_errors import user_errors
 from lerobot_subgoalvla.envs.calvin.evaluation.chains import (
@@ -43,7 +44,6 @@ from lerobot_subgoalvla.envs.calvin.evaluation.results import (
     NOT_ATTEMPTED,
     SUCCESS,
     EpisodeResult,
-    atomic_write,
     episode_results_from_eval_info,
     merge_results,
     read_episode_results,

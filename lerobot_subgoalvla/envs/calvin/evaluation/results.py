@@ -16,8 +16,6 @@ Chains can be evaluated in shards (ranges of chain ids, on several processes or 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,23 +26,6 @@ from lerobot_subgoalvla.envs.calvin.protocol import CHAIN_LENGTH
 
 #: Per-subtask outcomes (CALVIN's per-task counting, spec 4.4).
 SUCCESS, FAILURE, NOT_ATTEMPTED = "success", "failure", "not_attempted"
-
-
-def atomic_write(path: Path, data: str | bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same folder + rename: never half-written."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data.encode() if isinstance(data, str) else data)
-        umask = os.umask(0)  # mkstemp creates 0600; give the file the permissions a plain open() would
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 @dataclass(frozen=True)
