@@ -175,14 +175,7 @@ def convert_split(
     """
     from lerobot.datasets import LeRobotDataset
 
-    if episodes_per_part < 1:
-        raise ValueError(f"--episodes-per-part must be >= 1, got {episodes_per_part}")
-    if max_episodes is not None and max_episodes < 1:
-        raise ValueError(f"--max-episodes must be >= 1 (or left out for all), got {max_episodes}")
-    refuse_overlap(root, "--root", Path(split_dir), "the split folder")
-    refuse_overlap(
-        root.with_name(root.name + ".partial"), "--root (its .partial)", Path(split_dir), "the split"
-    )
+    _check_arguments(split_dir, root, episodes_per_part, max_episodes)
     if resume and (root / "meta" / "info.json").is_file():  # finished earlier (maybe killed before clean-up)
         logger.info("%s is already complete; nothing to resume", root)
         shutil.rmtree(root.with_name(root.name + ".partial"), ignore_errors=True)
@@ -204,17 +197,10 @@ def convert_split(
     }
     partial = _prepare_partial(root, record, resume, overwrite)
     jobs = [
-        PartJob(
-            i // episodes_per_part,
-            partial / "parts",
-            repo_id,
-            split.root,
-            tuple(episodes[i : i + episodes_per_part]),
-            features,
-            options,
-        )
+        PartJob(i // episodes_per_part, partial / "parts", repo_id, split.root,
+                tuple(episodes[i : i + episodes_per_part]), features, options)
         for i in range(0, len(episodes), episodes_per_part)
-    ]
+    ]  # fmt: skip
     _run_parts(jobs, workers, sum(ep.length for ep in episodes), f"{split.name} ({options.mode})", quiet)
     merged = _finish(partial, repo_id, jobs, record)
     if verify:  # before the rename: a dataset that fails verification never appears at ROOT
@@ -228,6 +214,18 @@ def convert_split(
     shutil.rmtree(partial)
     logger.info("wrote %d episodes / %d frames to %s", len(episodes), sum(ep.length for ep in episodes), root)
     return LeRobotDataset(repo_id, root=root, video_backend="pyav")
+
+
+def _check_arguments(split_dir: Path, root: Path, episodes_per_part: int, max_episodes: int | None) -> None:
+    """Everything that can be refused before a file is read or written."""
+    if episodes_per_part < 1:
+        raise ValueError(f"--episodes-per-part must be >= 1, got {episodes_per_part}")
+    if max_episodes is not None and max_episodes < 1:
+        raise ValueError(f"--max-episodes must be >= 1 (or left out for all), got {max_episodes}")
+    refuse_overlap(root, "--root", Path(split_dir), "the split folder")
+    refuse_overlap(
+        root.with_name(root.name + ".partial"), "--root (its .partial)", Path(split_dir), "the split"
+    )
 
 
 def _check_push_possible() -> None:

@@ -136,6 +136,22 @@ class CalvinEnv(gym.Env):
         self._episode_over = False
         self._last_static: np.ndarray | None = None
 
+    def _fresh_simulation(self) -> None:
+        """Build the simulator at the first reset; restore its freshly loaded state at every reset."""
+        if self._sim is None:
+            self._sim = CalvinSimulation(
+                scene=self.scene,
+                assets_dir=self.assets_dir,
+                static_size=self.static_size,
+                gripper_size=self.gripper_size,
+                action_mode=self.action_mode,
+                renderer=self.renderer,
+            )
+            # Every episode starts from the just-loaded world, as in a fresh calvin_env: pybullet keeps
+            # contact caches across resets, so without this a first reset(seed) differs from later ones.
+            self._loaded_state = self._sim.client.saveState()
+        self._sim.client.restoreState(stateId=self._loaded_state)
+
     # ------------------------------------------------------------------------------------------ spaces
     def _make_observation_space(self) -> gym.spaces.Dict:
         def image(side: int) -> gym.spaces.Box:
@@ -211,19 +227,7 @@ class CalvinEnv(gym.Env):
             )
         robot_obs = _checked_state(options.get("robot_obs"), ROBOT_OBS_DIM, "robot_obs")
         scene_obs = _checked_state(options.get("scene_obs"), SCENE_OBS_DIM, "scene_obs")
-        if self._sim is None:
-            self._sim = CalvinSimulation(
-                scene=self.scene,
-                assets_dir=self.assets_dir,
-                static_size=self.static_size,
-                gripper_size=self.gripper_size,
-                action_mode=self.action_mode,
-                renderer=self.renderer,
-            )
-            # Every episode starts from the just-loaded world, as in a fresh calvin_env: pybullet keeps
-            # contact caches across resets, so without this a first reset(seed) differs from later ones.
-            self._loaded_state = self._sim.client.saveState()
-        self._sim.client.restoreState(stateId=self._loaded_state)
+        self._fresh_simulation()
         # CALVIN keeps the previous episode's gripper command across resets (spec 3.8), so robot_obs[14] of
         # the first frame would depend on episode order. Reset it to the start state's (open unless robot_obs
         # says otherwise): the same seed then gives the same episode, and chain shards are order-independent.
