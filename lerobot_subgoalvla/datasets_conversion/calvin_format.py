@@ -149,6 +149,10 @@ def _text(value: object, what: str, index: int) -> str:
             raise ValueError(f"window {index}: {what} {bytes(value)!r} is not UTF-8 ({error})") from None
     if not isinstance(value, str | np.str_) or not str(value).strip():
         raise ValueError(f"window {index}: empty or non-text {what} {value!r}")
+    try:
+        str(value).encode("utf-8")
+    except UnicodeEncodeError as error:  # a lone surrogate: no file format or tokenizer can store it
+        raise ValueError(f"window {index}: {what} {value!r} is not valid Unicode ({error.reason})") from None
     return str(value)
 
 

@@ -148,6 +148,7 @@ def test_validator_full_native_profile_requires_all_ten_keys(split_dir: Path) ->
     [
         ([b"open the \xff\xfe drawer"], ["open_drawer"], "window 0: instruction .* is not UTF-8"),
         (["  "], ["open_drawer"], "window 0: empty or non-text instruction"),
+        (["open the \udce9 drawer"], ["open_drawer"], "window 0: instruction .* is not valid Unicode"),
         (["open the drawer"], ["open_the_drawer"], "Unknown CALVIN task 'open_the_drawer'"),
         ([b"open the drawer"], [b"open_drawer"], None),  # UTF-8 bytes, as some exports store them: fine
     ],
