@@ -18,6 +18,7 @@ The dataset needs cameras of one shape for ``diffusion`` (LeRobot's requirement)
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import statistics
@@ -48,7 +49,7 @@ def cameras_share_a_shape(root: Path) -> bool:
 
 
 def measure(
-    policy: str, root: Path, repo_id: str, steps: int, batch: int, threads: int, workers: int
+    policy: str, root: Path, repo_id: str, steps: int, batch: int, threads: int, workers: int, backend: str
 ) -> dict:
     with tempfile.TemporaryDirectory() as out:
         log = Path(out) / "train.log"
@@ -59,7 +60,7 @@ def measure(
             "--policy.device=cpu",
             f"--dataset.repo_id={repo_id}",
             f"--dataset.root={root}",
-            "--dataset.video_backend=pyav",
+            f"--dataset.video_backend={backend}",
             f"--output_dir={Path(out) / 'run'}",
             f"--steps={steps}",
             f"--batch_size={batch}",
@@ -87,6 +88,7 @@ def measure(
         "policy": policy,
         "threads": threads,
         "workers": workers,
+        "backend": backend,
         "batch": batch,
         "updt_s": update,
         "data_s": data,
@@ -103,28 +105,32 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=32)
     parser.add_argument("--threads", nargs="+", type=int, default=[1])
     parser.add_argument("--workers", nargs="+", type=int, default=[1])
+    parser.add_argument(
+        "--video-backends", nargs="+", default=["pyav"], choices=["pyav", "torchcodec"],
+        help="LeRobot's video decoders to compare (torchcodec needs FFmpeg's shared libraries)",
+    )  # fmt: skip
     args = parser.parse_args()
     same_shape = cameras_share_a_shape(args.dataset_root)
     print(
-        f"{'policy':<10} {'threads':>7} {'workers':>7} {'batch':>5} {'updt_s':>7} {'data_s':>7} "
+        f"{'policy':<10} {'threads':>7} {'workers':>7} {'decoder':>10} {'batch':>5} {'updt_s':>7} "
+        f"{'data_s':>7} "
         f"{'samples/s':>9}"
     )
     for policy in args.policies:
         if policy == "diffusion" and not same_shape:
             print(f"{policy:<10} skipped: LeRobot's diffusion needs all cameras of one shape")
             continue
-        for threads in args.threads:
-            for workers in args.workers:
-                r = measure(
-                    policy, args.dataset_root, args.repo_id, args.steps, args.batch_size, threads, workers
-                )
-                if "error" in r:
-                    print(f"{policy:<10} failed: {r['error']}")
-                    continue
-                print(
-                    f"{policy:<10} {threads:>7} {workers:>7} {r['batch']:>5} {r['updt_s']:>7.3f} "
-                    f"{r['data_s']:>7.3f} {r['samples_per_s']:>9.1f}"
-                )
+        settings = itertools.product(args.threads, args.workers, args.video_backends)
+        for threads, workers, backend in settings:
+            r = measure(policy, args.dataset_root, args.repo_id, args.steps, args.batch_size, threads, workers,
+                        backend)  # fmt: skip
+            if "error" in r:
+                print(f"{policy:<10} failed: {r['error']}")
+                continue
+            print(
+                f"{policy:<10} {threads:>7} {workers:>7} {backend:>10} {r['batch']:>5} {r['updt_s']:>7.3f} "
+                f"{r['data_s']:>7.3f} {r['samples_per_s']:>9.1f}"
+            )
 
 
 if __name__ == "__main__":
