@@ -122,8 +122,8 @@ def main() -> None:
             continue
         settings = itertools.product(args.threads, args.workers, args.video_backends)
         for threads, workers, backend in settings:
-            r = measure(policy, args.dataset_root, args.repo_id, args.steps, args.batch_size, threads, workers,
-                        backend)  # fmt: skip
+            run = (args.dataset_root, args.repo_id, args.steps, args.batch_size)
+            r = measure(policy, *run, threads, workers, backend)
             if "error" in r:
                 print(f"{policy:<10} failed: {r['error']}")
                 continue
