@@ -40,7 +40,7 @@ def dataset_trace_frames(
     root: Path, episode: int, every: int, scene: str = "procedural", assets_dir: str | None = None
 ) -> list[np.ndarray]:
     """One ghost overlay (H, W, 3) uint8 per ``every``-th frame of ``episode`` of the dataset at ``root``."""
-    from lerobot.datasets import LeRobotDataset
+    from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 
     from lerobot_subgoalvla.envs.calvin.sim.simulation import CalvinSimulation
 
@@ -48,18 +48,14 @@ def dataset_trace_frames(
         raise FileNotFoundError(f"--dataset-root {root}: no meta/info.json; pass a converted LeRobotDataset")
     if every < 1:
         raise ValueError(f"--every must be >= 1, got {every}")
-    meta_dataset = LeRobotDataset(f"local/{Path(root).name}", root=root, video_backend="pyav", episodes=[0])
+    meta = LeRobotDatasetMetadata(f"local/{Path(root).name}", root=root)  # features only, no frames decoded
     missing = [
-        k
-        for k in (STATIC_KEY, GRIPPER_KEY, STATE_KEY, SCENE_KEY, TRACE_KEY)
-        if k not in meta_dataset.features
+        k for k in (STATIC_KEY, GRIPPER_KEY, STATE_KEY, SCENE_KEY, TRACE_KEY) if k not in meta.features
     ]
     if missing:
         raise ValueError(f"--dataset-root {root}: lacks {missing}; convert it with subgoalvla-convert-calvin")
-    if not 0 <= episode < meta_dataset.meta.total_episodes:
-        raise ValueError(
-            f"--episode {episode}: the dataset has episodes 0..{meta_dataset.meta.total_episodes - 1}"
-        )
+    if not 0 <= episode < meta.total_episodes:
+        raise ValueError(f"--episode {episode}: the dataset has episodes 0..{meta.total_episodes - 1}")
     dataset = LeRobotDataset(f"local/{Path(root).name}", root=root, video_backend="pyav", episodes=[episode])
     static_side = int(dataset.features[STATIC_KEY]["shape"][0])  # (H, W, 3)
     gripper_side = int(dataset.features[GRIPPER_KEY]["shape"][0])

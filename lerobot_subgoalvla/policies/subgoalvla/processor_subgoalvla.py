@@ -67,13 +67,20 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
     task_key: str = "task"
     _tokenizer: Any = field(default=None, init=False, repr=False)
     _spec: Any = field(default=None, init=False, repr=False)  # backbone.VLMInputSpec
+    _tokenize: Any = field(default=None, init=False, repr=False)  # backbone.tokenize_instructions
 
     def __post_init__(self) -> None:
         if (self.name_or_path is None) == (self.tiny_dims is None):
             raise ValueError("subgoalvla_tokenizer_processor needs exactly one of name_or_path / tiny_dims")
         # Imported here, not at module level: registering this step (lerobot_subgoalvla.plugin) must not load
         # transformers; building it does.
-        from lerobot_subgoalvla.policies.subgoalvla.backbone import VLMInputSpec, load_tokenizer
+        from lerobot_subgoalvla.policies.subgoalvla.backbone import (
+            VLMInputSpec,
+            load_tokenizer,
+            tokenize_instructions,
+        )
+
+        self._tokenize = tokenize_instructions
 
         tiny = TinyLlavaDims(**self.tiny_dims) if self.tiny_dims is not None else None
         self._tokenizer = load_tokenizer(self.name_or_path)
@@ -97,9 +104,7 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
         )
 
     def observation(self, observation: RobotObservation) -> RobotObservation:
-        from lerobot_subgoalvla.policies.subgoalvla.backbone import tokenize_instructions
-
-        input_ids, attention_mask = tokenize_instructions(
+        input_ids, attention_mask = self._tokenize(
             self._tokenizer, self._instructions(), self.max_length, self._spec
         )
         device = next((v.device for v in observation.values() if isinstance(v, torch.Tensor)), None)

@@ -88,7 +88,8 @@ class Scene:
     def load(self) -> None:
         """Blocks in slot order, then the table, then the plane (spec 3.1: uids 2-4, 5, 6)."""
         c = self.client
-        load_poses = calvin_load_poses(self.source.surfaces, len(self.source.blocks))
+        calvin_blocks = bool(self.source.blocks) and self.source.blocks[0].urdf is not None
+        load_poses = calvin_load_poses(self.source.surfaces, len(self.source.blocks)) if calvin_blocks else []
         for slot, block in enumerate(self.source.blocks):
             if block.urdf is not None:  # CALVIN's scenes: where a fresh calvin_env loads them
                 position, yaw = load_poses[slot]
