@@ -52,13 +52,36 @@ def _load_split(split_dir: Path) -> CalvinSplit:
         ) from error
     if len(split.segments) == 0:
         raise ValueError(f"{ids_path}: empty split (no segments); use a split with recorded frames")
-    lengths = split.segments[:, 1] - split.segments[:, 0] + 1
+    _check_segment_table(ids_path, split.segments)
+    return split
+
+
+def _check_segment_table(ids_path: Path, segments: np.ndarray) -> None:
+    """Refuse tables that would convert into wrong data rather than fail: CalvinSplit casts to int64, so
+    float ids would be truncated silently, and overlapping rows would put the same frames in two episodes.
+    Rows out of order are fine (episodes follow the table's order)."""
+    dtype = np.load(ids_path, mmap_mode="r").dtype
+    if not np.issubdtype(dtype, np.integer):
+        raise ValueError(
+            f"{ids_path}: holds {dtype} values; frame ids must be integers - re-download the file"
+        )
+    lengths = segments[:, 1] - segments[:, 0] + 1
     if (lengths < 1).any():
         row = int(np.argmin(lengths))
+        raise ValueError(f"{ids_path}: row {row} {segments[row].tolist()} has end < start; fix the table")
+    if (segments < 0).any():
+        row = int(np.argmin(segments.min(axis=1)))
         raise ValueError(
-            f"{ids_path}: row {row} {split.segments[row].tolist()} has end < start; fix the table"
+            f"{ids_path}: row {row} {segments[row].tolist()} has a negative frame id; fix the table"
         )
-    return split
+    order = np.argsort(segments[:, 0], kind="stable")
+    clash = np.nonzero(segments[order[1:], 0] <= segments[order[:-1], 1])[0]
+    if len(clash):
+        a, b = sorted(int(i) for i in order[[clash[0], clash[0] + 1]])
+        raise ValueError(
+            f"{ids_path}: rows {a} {segments[a].tolist()} and {b} {segments[b].tolist()} overlap; a frame "
+            "belongs to one segment only - fix the table"
+        )
 
 
 def _check_coverage(split: CalvinSplit) -> None:

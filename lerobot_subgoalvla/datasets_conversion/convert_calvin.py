@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Literal
 
 from tqdm import tqdm
 
-from lerobot_subgoalvla.cli_errors import user_errors
+from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, require_at_least, user_errors
 from lerobot_subgoalvla.datasets_conversion.calvin_format import SPLITS, CalvinSplit
 from lerobot_subgoalvla.datasets_conversion.calvin_quirks import EpisodeSpec, language_episodes, play_episodes
 from lerobot_subgoalvla.datasets_conversion.calvin_validate import validate_split
@@ -49,7 +49,11 @@ from lerobot_subgoalvla.datasets_conversion.lerobot_parts import (
     merge_parts,
     write_part,
 )
-from lerobot_subgoalvla.datasets_conversion.output_paths import refuse_overlap
+from lerobot_subgoalvla.datasets_conversion.output_paths import (
+    check_repo_id,
+    check_source_folder,
+    refuse_overlap,
+)
 
 if TYPE_CHECKING:
     from lerobot.datasets import LeRobotDataset
@@ -175,7 +179,7 @@ def convert_split(
     """
     from lerobot.datasets import LeRobotDataset
 
-    _check_arguments(split_dir, root, episodes_per_part, max_episodes)
+    _check_arguments(split_dir, root, workers, episodes_per_part, max_episodes)
     if resume and (root / "meta" / "info.json").is_file():  # finished earlier (maybe killed before clean-up)
         logger.info("%s is already complete; nothing to resume", root)
         shutil.rmtree(root.with_name(root.name + ".partial"), ignore_errors=True)
@@ -216,12 +220,12 @@ def convert_split(
     return LeRobotDataset(repo_id, root=root, video_backend="pyav")
 
 
-def _check_arguments(split_dir: Path, root: Path, episodes_per_part: int, max_episodes: int | None) -> None:
+def _check_arguments(
+    split_dir: Path, root: Path, workers: int, episodes_per_part: int, max_episodes: int | None
+) -> None:
     """Everything that can be refused before a file is read or written."""
-    if episodes_per_part < 1:
-        raise ValueError(f"--episodes-per-part must be >= 1, got {episodes_per_part}")
-    if max_episodes is not None and max_episodes < 1:
-        raise ValueError(f"--max-episodes must be >= 1 (or left out for all), got {max_episodes}")
+    counts = {"--workers": workers, "--episodes-per-part": episodes_per_part}
+    require_at_least(1, counts if max_episodes is None else {**counts, "--max-episodes": max_episodes})
     refuse_overlap(root, "--root", Path(split_dir), "the split folder")
     refuse_overlap(
         root.with_name(root.name + ".partial"), "--root (its .partial)", Path(split_dir), "the split"
@@ -251,6 +255,8 @@ def convert(
     Returns:
         ``{split_name: LeRobotDataset}``.
     """
+    check_repo_id(repo_id)  # before it names a folder: the default ROOT is $HF_LEROBOT_HOME/ID
+    check_source_folder(Path(src), "SRC", "a CALVIN dataset folder containing training/ and/or validation/")
     if push_to_hub:
         _check_push_possible()
     from lerobot.utils.constants import HF_LEROBOT_HOME
@@ -271,8 +277,10 @@ def convert(
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     """The CLI flags (module docstring)."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    parser = OneLineArgumentParser(
+        prog="subgoalvla-convert-calvin",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("src", type=Path, help="CALVIN dataset folder (containing training/ and validation/)")
     parser.add_argument("--repo-id", required=True, help="dataset id, e.g. me/calvin_abc_lang")
@@ -308,10 +316,10 @@ def main(argv: Sequence[str] | None = None) -> None:
     """Entry point of ``subgoalvla-convert-calvin``: one log line per error, non-zero exit."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger().setLevel(logging.INFO)  # LeRobot may have installed the root handler already
-    args = parse_args(argv)
-    if not args.verbose:
-        quiet_libraries()
     with user_errors(logger, "interrupted; rerun the same command with --resume to continue"):
+        args = parse_args(argv)
+        if not args.verbose:
+            quiet_libraries()
         datasets = convert(
             args.src, args.repo_id, args.root, args.split, args.push_to_hub, **options_from_args(args)
         )

@@ -41,7 +41,7 @@ import numpy as np
 from tqdm import tqdm
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES, check_task_name
-from lerobot_subgoalvla.cli_errors import user_errors
+from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, require_at_least, user_errors
 from lerobot_subgoalvla.datasets_conversion.calvin_format import (
     SPLITS,
     LanguageAnnotations,
@@ -88,15 +88,15 @@ class GeneratorOptions:
         positive = {"--num-tasks": self.num_tasks, "--tasks-per-segment": self.tasks_per_segment,
                     "--max-steps-per-task": self.max_steps_per_task, "--static-size": self.static_size,
                     "--gripper-size": self.gripper_size}  # fmt: skip
-        for flag, value in positive.items():
-            if value < 1:
-                raise ValueError(f"{flag} must be >= 1, got {value}")
+        require_at_least(1, positive)
+        require_at_least(0, {"--seed": self.seed})  # numpy's SeedSequence takes non-negative entropy only
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"--val-fraction must be in [0, 1), got {self.val_fraction}")
         if self.val_fraction > 0 and len(self.segment_tasks()) < 2:
             raise ValueError(
-                "--val-fraction > 0 needs at least 2 segments for two splits; raise --num-tasks or lower "
-                "--tasks-per-segment"
+                f"--num-tasks {self.num_tasks} with --tasks-per-segment {self.tasks_per_segment} is one "
+                f"segment, and --val-fraction {self.val_fraction} needs 2 (one per split); lower "
+                "--tasks-per-segment, raise --num-tasks or pass --val-fraction 0"
             )
 
     @property
@@ -212,7 +212,9 @@ def _assemble_split(output: Path, name: str, jobs: list[SegmentJob], opts: Gener
 def _check_options(segments_dir: Path, opts: GeneratorOptions) -> None:
     path = segments_dir / "options.json"
     record = json.loads(json.dumps(asdict(opts)))  # tuples as JSON lists, as read back
-    if path.is_file() and json.loads(path.read_text()) != record:
+    finished = [p for p in segments_dir.glob("segment-*") if p.suffix != ".tmp"] if path.is_file() else []
+    # Options recorded by a run that finished no segment protect nothing: the corrected rerun replaces them.
+    if finished and json.loads(path.read_text()) != record:
         raise ValueError(
             f"{path}: OUTPUT holds a generation with other options; rerun with them or use a new --output"
         )
@@ -227,6 +229,7 @@ OPTIONS_RECORD = "generator_options.json"
 def generate(output: Path, opts: GeneratorOptions, workers: int = 1) -> dict[str, Path]:
     """Generate (or finish generating) ``OUTPUT/training`` and ``OUTPUT/validation``; returns their paths."""
     output = Path(output)
+    require_at_least(1, {"--workers": workers})
     if opts.assets_dir is not None:
         refuse_overlap(output, "--output", Path(opts.assets_dir), "the calvin_env clone (--assets-dir)")
     splits = [name for name in SPLITS if name == "training" or opts.val_fraction > 0]  # no empty validation
@@ -270,8 +273,10 @@ def generate(output: Path, opts: GeneratorOptions, workers: int = 1) -> dict[str
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     """The CLI flags (module docstring)."""
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    parser = OneLineArgumentParser(
+        prog="subgoalvla-generate-calvin",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--output", type=Path, required=True, help="dataset folder to create")
     parser.add_argument("--num-tasks", type=int, required=True, help="task attempts in total")
@@ -312,9 +317,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     """Entry point of ``subgoalvla-generate-calvin``: one log line per error, non-zero exit."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger().setLevel(logging.INFO)  # LeRobot may have installed the root handler already
-    args = vars(parse_args(argv))
-    output, workers = args.pop("output"), args.pop("workers")
     with user_errors(logger, "interrupted; rerun the same command to continue where it stopped"):
+        args = vars(parse_args(argv))
+        output, workers = args.pop("output"), args.pop("workers")
         paths = generate(output, GeneratorOptions(**args), workers)
     logger.info("generated %s", ", ".join(str(p) for p in paths.values()))
 

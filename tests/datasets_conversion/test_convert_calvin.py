@@ -135,7 +135,7 @@ def _run_main(argv: list[str], caplog: pytest.LogCaptureFixture) -> str:
 def test_cli_errors(source: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch) -> None:
     base = ["--repo-id", "local/x", "--image-format", "image"]
     message = _run_main([str(tmp_path / "missing"), *base, "--root", str(tmp_path / "o1")], caplog)
-    assert "missing/training: split folder not found" in message
+    assert f"SRC {tmp_path / 'missing'}: not found; point SRC at a CALVIN dataset folder" in message
     (tmp_path / "exists").mkdir()
     message = _run_main([str(source), *base, "--root", str(tmp_path / "exists")], caplog)
     assert "output folder already exists; pass --overwrite" in message
@@ -316,3 +316,80 @@ def test_frames_of_different_image_sizes_name_the_file(tmp_path: Path, caplog) -
     argv = [str(src), "--repo-id", "local/x", "--mode", "all", "--image-format", "image"]
     message = _run_main([*argv, "--root", str(tmp_path / "o")], caplog)
     assert "episode_0000004.npz: 'rgb_static' is (32, 32, 3)" in message and "same image sizes" in message
+
+
+def _with_segment_table(source: Path, tmp_path: Path, table: np.ndarray) -> Path:
+    """A copy of the fixture's training split whose ep_start_end_ids.npy is ``table``."""
+    import shutil
+
+    src = tmp_path / "src"
+    shutil.copytree(source / "training", src / "training")
+    np.save(src / "training" / "ep_start_end_ids.npy", table)
+    return src
+
+
+@pytest.mark.parametrize(
+    ("make_source", "flags", "message"),
+    [
+        (
+            lambda s, t: (t / "a_file").write_text("x") and t / "a_file",
+            [],
+            "is a file, not a folder; point SRC",
+        ),
+        (lambda s, t: (t / "empty").mkdir() or t / "empty", [], "empty/training: split folder not found"),
+        (lambda s, t: _with_segment_table(s, t, np.array([[0.0, 29.5]])), [], "holds float64 values"),
+        (lambda s, t: _with_segment_table(s, t, np.array([[-3, 29]])), [], "row 0 [-3, 29] has a negative"),
+        (
+            lambda s, t: _with_segment_table(s, t, np.array([[40, 74], [0, 29], [20, 35]])),
+            [],
+            "rows 1 [0, 29] and 2 [20, 35] overlap",
+        ),
+        (
+            lambda s, t: _with_segment_table(s, t, np.array([[0, 29], [40, 80]])),
+            [],
+            "episode_0000075.npz: frame file missing although ep_start_end_ids.npy covers it",
+        ),
+        (lambda s, t: s, ["--workers", "0"], "--workers must be >= 1, got 0"),
+        (lambda s, t: s, ["--workers", "-2"], "--workers must be >= 1, got -2"),
+        (lambda s, t: s, ["--workers", "two"], "argument --workers: invalid int value: 'two'"),
+        (lambda s, t: s, ["--repo-id", ""], "--repo-id '' is not a dataset id"),
+        (lambda s, t: s, ["--repo-id", "a/b/c"], "--repo-id 'a/b/c' is not a dataset id"),
+        (lambda s, t: s, ["--repo-id", "/etc"], "--repo-id '/etc' is not a dataset id"),
+        (lambda s, t: s, ["--repo-id", "me/my data"], "use NAMESPACE/NAME"),
+    ],
+    ids=[
+        "src-is-a-file",
+        "src-empty-folder",
+        "table-float-ids",
+        "table-negative-id",
+        "table-rows-overlap",
+        "table-points-at-missing-frames",
+        "workers-0",
+        "workers-negative",
+        "workers-not-a-number",
+        "repo-id-empty",
+        "repo-id-three-parts",
+        "repo-id-absolute-path",
+        "repo-id-space",
+    ],
+)
+def test_bad_source_table_or_flag_is_one_line_before_anything_is_written(
+    source: Path, tmp_path: Path, caplog, make_source, flags: list[str], message: str
+) -> None:
+    """--repo-id matters with --root too: without it the id is the folder under $HF_LEROBOT_HOME, so '' or
+    '/etc' would aim --overwrite at that folder itself or outside it."""
+    src = make_source(source, tmp_path)
+    argv = [str(src), "--repo-id", "local/x", "--mode", "all", "--image-format", "image"]
+    got = _run_main([*argv, "--root", str(tmp_path / "o"), *flags], caplog)
+    assert message in got
+    assert not (tmp_path / "o").exists() and not (tmp_path / "o.partial").exists()
+
+
+def test_segment_rows_out_of_order_convert_in_the_table_order(source: Path, tmp_path: Path) -> None:
+    """Not an error: each episode is still its own segment's frames, in the order the table lists them."""
+    src = _with_segment_table(source, tmp_path, np.array([[40, 74], [0, 29]]))
+    options = ConversionOptions(image_format="image", mode="all")
+    dataset = convert(src, "local/o", tmp_path / "o", options=options)["training"]
+    frame_ids = _columns(dataset, "calvin_frame_index").reshape(-1)
+    np.testing.assert_array_equal(frame_ids, np.r_[np.arange(40, 75), np.arange(0, 30)])
+    np.testing.assert_array_equal(np.bincount(_columns(dataset, "episode_index")), [35, 30])

@@ -12,7 +12,7 @@ from lerobot_subgoalvla.datasets_conversion.calvin_format import CalvinSplit
 from lerobot_subgoalvla.datasets_conversion.calvin_play import relative_actions
 from lerobot_subgoalvla.datasets_conversion.calvin_validate import validate_split
 from lerobot_subgoalvla.datasets_conversion.convert_calvin import convert
-from lerobot_subgoalvla.datasets_conversion.generate_calvin import GeneratorOptions, generate
+from lerobot_subgoalvla.datasets_conversion.generate_calvin import SEGMENTS_DIR, GeneratorOptions, generate
 from lerobot_subgoalvla.datasets_conversion.lerobot_parts import ConversionOptions
 
 pytest.importorskip("pybullet")
@@ -98,11 +98,11 @@ def test_generated_data_converts(generated: Path, tmp_path: Path) -> None:
 
 
 def test_option_errors(tmp_path: Path) -> None:
-    with pytest.raises(ValueError, match="at least 2 segments"):
+    with pytest.raises(ValueError, match="is one segment, .* or pass --val-fraction 0"):
         GeneratorOptions(num_tasks=1, seed=0, val_fraction=0.1)
     with pytest.raises(ValueError, match="val-fraction"):
         GeneratorOptions(num_tasks=4, seed=0, val_fraction=1.5)
-    (tmp_path / "out" / ".segments").mkdir(parents=True)
+    (tmp_path / "out" / ".segments" / "segment-000000").mkdir(parents=True)  # a finished segment to protect
     (tmp_path / "out" / ".segments" / "options.json").write_text("{}")
     with pytest.raises(ValueError, match="other options"):
         generate(tmp_path / "out", OPTIONS)
@@ -141,7 +141,7 @@ def test_task_filter_is_validated_and_recorded(tmp_path: Path) -> None:
     args = generate_calvin.parse_args(["--output", "x", "--num-tasks", "4", "--seed", "0",
                                        "--tasks", "open_drawer, close_drawer"])  # fmt: skip
     assert args.tasks == ("open_drawer", "close_drawer")
-    with pytest.raises(SystemExit):
+    with pytest.raises(ValueError, match="argument --tasks: Unknown CALVIN task 'nope'"):
         generate_calvin.parse_args(["--output", "x", "--num-tasks", "4", "--seed", "0", "--tasks", "nope"])
 
 
@@ -220,3 +220,137 @@ def test_options_are_checked_before_anything_is_written(tmp_path: Path, changes:
     with pytest.raises((ValueError, FileNotFoundError), match=message):
         generate(tmp_path / "out", GeneratorOptions(**{**base, **changes}))
     assert not (tmp_path / "out").exists()  # the corrected rerun is not blocked by a half-written output
+
+
+SMALL = [
+    "--static-size",
+    "16",
+    "--gripper-size",
+    "16",
+    "--tasks",
+    "turn_on_led",
+    "--max-steps-per-task",
+    "60",
+]
+
+
+def _main_fails(argv: list[str], caplog: pytest.LogCaptureFixture) -> str:
+    """The generator CLI on ``argv``: exit 1 and exactly one one-line ERROR record, returned."""
+    import logging
+
+    caplog.clear()
+    with caplog.at_level(logging.ERROR), pytest.raises(SystemExit) as info:
+        generate_calvin.main(argv)
+    assert info.value.code == 1
+    errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+    assert len(errors) == 1 and "\n" not in errors[0], errors
+    return errors[0]
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--num-tasks", "0", "--seed", "0"], "--num-tasks must be >= 1, got 0"),
+        (["--num-tasks", "-3", "--seed", "0"], "--num-tasks must be >= 1, got -3"),
+        (
+            ["--num-tasks", "2", "--seed", "0", "--val-fraction", "0", "--workers", "0"],
+            "--workers must be >= 1, got 0",
+        ),
+        (["--num-tasks", "2", "--seed", "0", "--tasks-per-segment", "0"], "--tasks-per-segment must be >= 1"),
+        (["--num-tasks", "2", "--seed", "-1", "--val-fraction", "0"], "--seed must be >= 0, got -1"),
+        # the default segment size (8) makes 4 tasks one segment: no room for a validation split
+        (["--num-tasks", "4", "--seed", "0"], "--num-tasks 4 with --tasks-per-segment 8 is one segment"),
+        (["--num-tasks", "four", "--seed", "0"], "argument --num-tasks: invalid int value: 'four'"),
+        (["--num-tasks", "2"], "the following arguments are required: --seed"),
+    ],
+    ids=[
+        "num-tasks-0",
+        "num-tasks-negative",
+        "workers-0",
+        "tasks-per-segment-0",
+        "seed-negative",
+        "one-segment-with-validation",
+        "num-tasks-not-a-number",
+        "seed-missing",
+    ],  # fmt: skip
+)
+def test_bad_counts_are_one_line_before_anything_is_written(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, flags: list[str], message: str
+) -> None:
+    assert message in _main_fails(["--output", str(tmp_path / "out"), *SMALL, *flags], caplog)
+    assert not (tmp_path / "out").exists()
+
+
+def test_zero_validation_fraction_makes_a_training_split_only(tmp_path: Path) -> None:
+    argv = [
+        "--output",
+        str(tmp_path / "out"),
+        *SMALL,
+        "--num-tasks",
+        "2",
+        "--seed",
+        "0",
+        "--val-fraction",
+        "0",
+    ]
+    generate_calvin.main(argv)
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["generator_options.json", "training"]
+    validate_split(tmp_path / "out" / "training", require_language=False)
+
+
+def test_a_run_stopped_before_its_first_segment_does_not_block_other_options(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C before any segment finished leaves only options.json: a rerun with other options proceeds."""
+    real = generate_calvin.generate_segment
+
+    def interrupted(job):  # noqa: ANN202
+        raise KeyboardInterrupt
+
+    options = GeneratorOptions(num_tasks=1, seed=0, val_fraction=0.0, tasks_per_segment=1, static_size=16,
+                               gripper_size=16, max_steps_per_task=60, tasks=("turn_on_led",))  # fmt: skip
+    monkeypatch.setattr(generate_calvin, "generate_segment", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        generate(tmp_path / "out", options)
+    monkeypatch.setattr(generate_calvin, "generate_segment", real)
+    fixed = GeneratorOptions(**{**options.__dict__, "seed": 1})
+    assert generate(tmp_path / "out", fixed)["training"].is_dir()
+
+
+def _generator_command(output: Path) -> list[str]:
+    import sys
+
+    return [sys.executable, "-m", "lerobot_subgoalvla.datasets_conversion.generate_calvin", "--output",
+            str(output), "--num-tasks", "8", "--seed", "4", "--tasks-per-segment", "1", "--val-fraction",
+            "0.25", "--static-size", "32", "--gripper-size", "16"]  # fmt: skip
+
+
+def _run_until(argv: list[str], ready, what: str) -> None:
+    """Start ``argv``, SIGKILL it as soon as ``ready()`` holds; fail if it ended before that."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path), "OMP_NUM_THREADS": "1"}
+    process = subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while not ready() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    process.send_signal(signal.SIGKILL)
+    assert process.wait() == -signal.SIGKILL, f"the run ended before {what}"
+
+
+def test_sigkill_mid_generation_then_rerun_gives_the_uninterrupted_data(tmp_path: Path) -> None:
+    """Killed twice (after segment 1, then after segment 5 of the rerun), the third run finishes: the native
+    files equal those of one uninterrupted run, and no scratch folder is left."""
+    killed, segments = tmp_path / "killed", tmp_path / "killed" / SEGMENTS_DIR
+    _run_until(_generator_command(killed), lambda: (segments / "segment-000001").is_dir(), "segment 1")
+    _run_until(_generator_command(killed), lambda: (segments / "segment-000005").is_dir(), "segment 5")
+    assert not (killed / "training").exists()
+    generate_calvin.main(_generator_command(killed)[3:])
+    generate_calvin.main(_generator_command(tmp_path / "reference")[3:])
+    for name in ("training", "validation"):
+        _assert_same(_split_contents(killed / name), _split_contents(tmp_path / "reference" / name))
+    assert sorted(p.name for p in killed.iterdir()) == ["generator_options.json", "training", "validation"]

@@ -41,7 +41,7 @@ import numpy as np
 
 from lerobot_subgoalvla.atomic_files import atomic_write
 from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS, TASK_NAMES, check_task_name
-from lerobot_subgoalvla.cli_errors import user_errors
+from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, user_errors
 
 # The symbolic -> simulator mapping lives in chain_scene.py and per-episode results in results.py; both are
 # re-exported here because chains.py is the env's seam (DESIGN.md).
@@ -332,13 +332,6 @@ def load_chains(path: Path) -> dict[int, Chain]:
 
 
 # ------------------------------------------------------------------------------------------------------ CLI
-class OneLineArgumentParser(argparse.ArgumentParser):
-    """argparse whose usage errors raise ValueError, so CLIs report them as one log line."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        raise ValueError(f"{self.prog}: {message} (see --help)")
-
-
 def configure_cli_logging() -> None:
     """INFO-level logging for the CLIs; importing LeRobot may already have set up a WARNING-level root
     logger."""

@@ -33,9 +33,8 @@ from typing import Any
 
 from lerobot_subgoalvla.atomic_files import atomic_write
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
-from lerobot_subgoalvla.cli_errors import user_errors
+from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, user_errors
 from lerobot_subgoalvla.envs.calvin.evaluation.chains import (
-    OneLineArgumentParser,
     configure_cli_logging,
     generate_chains,
     load_chains,
