@@ -80,3 +80,63 @@ def test_the_plugin_module_registers_everything_in_a_fresh_interpreter() -> None
         [sys.executable, "-c", script], capture_output=True, text=True, env=ENV, timeout=300
     )
     assert result.returncode == 0 and result.stdout.strip().endswith("ok"), result.stderr[-2000:]
+
+
+def _lerobot_main(module: str, argv: list[str], capsys: pytest.CaptureFixture) -> tuple[int, str]:
+    """Run LeRobot's console script ``module`` in this process (parsing fails within a second, while a
+    subprocess spends ~10 s importing); returns its exit code and the last line of stderr."""
+    import importlib
+    import sys
+
+    import lerobot_subgoalvla.plugin  # noqa: F401 - what LeRobot's plugin discovery imports
+
+    script = importlib.import_module(f"lerobot.scripts.{module}")
+    capsys.readouterr()
+    old_argv, sys.argv = sys.argv, [module.replace("_", "-"), *argv]
+    try:
+        with pytest.raises(SystemExit) as info:
+            script.main()
+    finally:
+        sys.argv = old_argv
+    return info.value.code, capsys.readouterr().err.strip().splitlines()[-1]
+
+
+def _results_file_with_chain_3(tmp_path) -> str:
+    from lerobot_subgoalvla.envs.calvin.env import official_chains
+    from lerobot_subgoalvla.envs.calvin.evaluation.results import EpisodeResult, append_episode_result
+
+    path = tmp_path / "results.jsonl"
+    append_episode_result(path, EpisodeResult(3, official_chains()[3].tasks, 2))
+    return str(path)
+
+
+@pytest.mark.parametrize(
+    ("flag", "code", "message"),
+    [
+        (
+            "--env.task=foo",
+            1,
+            "error: --env.task='foo' is not valid; use 'lh_mtlc' or one of: rotate_red_block_",
+        ),
+        ("--env.episode_length=0", 1, "error: --env.episode_length=0 must be a positive integer"),
+        ("--env.chain_stop=2000", 1, "0 <= chain_start < chain_stop <= 1000"),
+        ("--env.resume=maybe", 1, "error: `env.resume`: Couldn't parse 'maybe' into a bool"),
+        # a flag that does not exist: LeRobot's argparse prints its usage block, then this line (exit 2)
+        ("--env.chains=x", 2, "lerobot-eval: error: unrecognized arguments: --env.chains=x"),
+        ("--env.results_path={results}", 1, "already holds 1 chain(s) of [0, 1000); pass --env.resume=true"),
+    ],
+    ids=[
+        "task-unknown",
+        "episode-length-0",
+        "chain-stop-too-large",
+        "resume-not-a-bool",
+        "unknown-flag",
+        "results-path-holds-chains",
+    ],  # fmt: skip
+)
+def test_bad_env_values_through_lerobot_eval_end_on_one_line(tmp_path, capsys, flag, code, message) -> None:
+    flag = flag.format(results=_results_file_with_chain_3(tmp_path)) if "{results}" in flag else flag
+    argv = ["--policy.type=subgoalvla", "--env.type=calvin", flag, f"--output_dir={tmp_path / 'eval'}"]
+    got_code, last_line = _lerobot_main("lerobot_eval", argv, capsys)
+    assert got_code == code and message in last_line
+    assert not (tmp_path / "eval").exists()

@@ -97,6 +97,10 @@ class CalvinEnvConfig(EnvConfig):
     # If set, every finished chain episode appends one JSON line (chains.py's record) here; `subgoalvla-
     # calvin-report` turns them into CALVIN's LH-1..5 table.
     results_path: str | None = None
+    # Continue an evaluation that was stopped: chains of the range already in `results_path` are skipped
+    # and the others appended. Without it, a `results_path` that holds chains of the range is refused (they
+    # would be counted twice, or mixed with another policy's).
+    resume: bool = False
     # the env's observation/action features (set from the image sizes; leave unset).
     features: dict[str, PolicyFeature] = field(default_factory=_default_features)
     # env key -> LeRobot key (`agent_pos` -> `observation.state`, ...; leave unset).
@@ -164,11 +168,43 @@ class CalvinEnvConfig(EnvConfig):
                     f"--env.results_path={self.results_path}: cannot write there (nearest existing folder "
                     f"{existing} is not a writable directory); choose a writable path"
                 )
+        if self.task == LH_MTLC:
+            self.pending_chain_ids()  # a results file that holds chains of the range is refused now
 
     @property
     def chain_ids(self) -> range:
-        """The chain ids this config evaluates (``lh_mtlc`` only)."""
+        """The chain ids of the range (``lh_mtlc`` only)."""
         return range(self.chain_start, self.chain_stop)
+
+    def pending_chain_ids(self) -> list[int]:
+        """The chain ids still to evaluate: the range, less those already in ``results_path`` when resuming.
+
+        Raises:
+            ConfigError: ``results_path`` holds chains of the range without ``resume``, it holds all of
+                them (nothing to do), or it is not a results file.
+        """
+        if self.results_path is None or not Path(self.results_path).expanduser().exists():
+            return list(self.chain_ids)
+        from lerobot_subgoalvla.envs.calvin.evaluation.results import records_to_resume  # light: json
+
+        try:
+            done = {r.chain_id for r in records_to_resume(Path(self.results_path).expanduser())}
+        except (ValueError, OSError) as error:
+            raise ConfigError(f"--env.results_path: {error}") from None
+        pending = [cid for cid in self.chain_ids if cid not in done]
+        flag = f"--env.results_path={self.results_path}"
+        if not self.resume and len(pending) < len(self.chain_ids):
+            raise ConfigError(
+                f"{flag} already holds {len(self.chain_ids) - len(pending)} chain(s) of "
+                f"[{self.chain_start}, {self.chain_stop}); pass --env.resume=true to evaluate only the "
+                "others, or choose a new --env.results_path"
+            )
+        if not pending:
+            raise ConfigError(
+                f"{flag} already holds every chain of [{self.chain_start}, {self.chain_stop}); nothing to "
+                f"evaluate - run subgoalvla-calvin-report {self.results_path}"
+            )
+        return pending
 
     @property
     def gym_kwargs(self) -> dict[str, Any]:
@@ -208,7 +244,7 @@ class CalvinEnvConfig(EnvConfig):
                 chain_stop=self.chain_stop,
                 chains={cid: chains[cid] for cid in self.chain_ids},
             )
-            pinned = {cid: {"chain_id": cid} for cid in self.chain_ids}
+            pinned = {cid: {"chain_id": cid} for cid in self.pending_chain_ids()}
         else:
             pinned = {TASK_NAMES.index(self.task): {}}
         probe = CalvinEnv(**kwargs)  # cheap: the simulator is created on the first reset

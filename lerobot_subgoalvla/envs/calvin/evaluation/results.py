@@ -16,6 +16,7 @@ Chains can be evaluated in shards (ranges of chain ids, on several processes or 
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +24,8 @@ from typing import Any
 
 from lerobot_subgoalvla.calvin_vocab import check_task_name
 from lerobot_subgoalvla.envs.calvin.protocol import CHAIN_LENGTH
+
+logger = logging.getLogger(__name__)
 
 #: Per-subtask outcomes (CALVIN's per-task counting, spec 4.4).
 SUCCESS, FAILURE, NOT_ATTEMPTED = "success", "failure", "not_attempted"
@@ -109,17 +112,45 @@ def read_episode_results(path: Path) -> list[EpisodeResult]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"Results file {path} not found")
+    text = path.read_text()
+    lines = text.splitlines()
     results = []
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
+    for number, line in enumerate(lines, start=1):
         if not line.strip():
             continue
         try:
             results.append(EpisodeResult.from_dict(json.loads(line)))
         except (json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+            if number == len(lines) and not text.endswith("\n"):  # every record ends with a newline
+                raise ValueError(
+                    f"{path}:{number}: incomplete last line (its writer was stopped mid-line); rerun the "
+                    "evaluation with --env.resume=true to redo that chain, or delete the line"
+                ) from None
             raise ValueError(
                 f"{path}:{number}: not an episode result ({err}); remove or fix that line"
             ) from None
     return results
+
+
+def records_to_resume(path: Path) -> list[EpisodeResult]:
+    """The finished records of a results file an evaluation continues (``--env.resume=true``).
+
+    A last line without its newline is a record whose writer was stopped: it is cut off (a warning names it),
+    so the resumed run redoes that chain and appends whole lines after whole lines. Any other bad line is
+    an error, as in :func:`read_episode_results`.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return []
+    data = path.read_bytes()
+    if data and not data.endswith(b"\n"):
+        keep = data.rfind(b"\n") + 1
+        logger.warning(
+            "%s: dropping an incomplete last line %r (its chain is evaluated again)", path, data[keep:]
+        )
+        with path.open("r+b") as f:
+            f.truncate(keep)
+    return read_episode_results(path)
 
 
 def merge_results(shards: Mapping[str, Iterable[EpisodeResult]]) -> list[EpisodeResult]:
