@@ -16,8 +16,13 @@ From the total it estimates the simulator-only wall time of the 1000-chain LH-MT
 completes ``--typical-length`` subtasks of ``--typical-subtask-steps`` steps and then fails one at 360 steps.
 Policy inference is not included.
 
+``--breakdown`` adds where the static camera's time goes: its CPU ms with each body of the scene removed (the
+difference is that body's share) and at other image sizes (TinyRenderer's cost follows the shaded pixels, not
+the triangles: the 2-triangle floor plane costs about as much as the table).
+
 Usage:
     python benchmarks/env_benchmark.py                          # procedural (+ calvin_D if assets are found)
+    python benchmarks/env_benchmark.py --breakdown --renderers tiny
     python benchmarks/env_benchmark.py --steps 200 --workers 1 4 16 --assets-dir ~/calvin_env
 """
 
@@ -80,6 +85,41 @@ def measure(scene: str, assets_dir: Path | None, steps: int, renderer: str = "ti
     }
 
 
+def _static_ms(sim: CalvinSimulation, renders: int, size: int | None = None) -> float:
+    if size is not None:
+        sim.cameras.static_size = size
+    times = []
+    for _ in range(renders):
+        start = time.thread_time()
+        sim.cameras.render_static()
+        times.append(time.thread_time() - start)
+    return 1000 * statistics.median(times)
+
+
+def static_breakdown(scene: str, assets_dir: Path | None, renders: int = 15) -> list[tuple[str, float]]:
+    """(what, static-camera CPU ms) rows: the full scene, the scene without each body (a fresh simulation
+    each), no body at all, and the full scene at other image sizes."""
+    rows = []
+    with CalvinSimulation(scene, assets_dir=assets_dir) as sim:
+        sim.reset(robot_obs=EVAL_ROBOT_OBS, scene_obs=_scene_obs())
+        rows.append(("full scene, 200 px", _static_ms(sim, renders)))
+        bodies = range(sim.client.getNumBodies())
+        names = [sim.client.getBodyInfo(uid)[1].decode() or f"body {uid}" for uid in bodies]
+    for uid, name in enumerate(names):
+        with CalvinSimulation(scene, assets_dir=assets_dir) as sim:
+            sim.reset(robot_obs=EVAL_ROBOT_OBS, scene_obs=_scene_obs())
+            sim.client.removeBody(uid)
+            rows.append((f"without {name}", _static_ms(sim, renders)))
+    with CalvinSimulation(scene, assets_dir=assets_dir) as sim:
+        sim.reset(robot_obs=EVAL_ROBOT_OBS, scene_obs=_scene_obs())
+        for size in (84, 128):
+            rows.append((f"full scene, {size} px", _static_ms(sim, renders, size)))
+        for uid in range(len(names)):
+            sim.client.removeBody(uid)
+        rows.append(("no body (background only), 128 px", _static_ms(sim, renders)))
+    return rows
+
+
 def lh_mtlc_hours(
     steps_per_s: float, workers: int, typical_length: float, typical_subtask_steps: int
 ) -> tuple:
@@ -110,6 +150,9 @@ def main() -> None:
     parser.add_argument("--typical-subtask-steps", type=int, default=90, help="steps of a completed subtask")
     parser.add_argument(
         "--renderers", nargs="+", default=["tiny", "egl"], choices=["tiny", "egl"], help="camera renderers"
+    )
+    parser.add_argument(
+        "--breakdown", action="store_true", help="also break the static camera's time down by body and size"
     )
     args = parser.parse_args()
     # llvmpipe (Mesa's EGL on a CPU) renders in its own threads unless told not to: thread CPU time would
@@ -149,6 +192,12 @@ def main() -> None:
             f"{100 * r['render_share']:>7.0f}%"
         )
     print("reference   calvin_env scene D, TinyRenderer, one core of the same machine class: 13.9 steps/s")
+    if args.breakdown:
+        print()
+        print("static camera (TinyRenderer), CPU ms per image:")
+        for scene in scenes:
+            for what, ms in static_breakdown(scene, Path(assets) if assets else None):
+                print(f"{scene:<11} {what:<36} {ms:>7.2f}")
     print()
     print(
         "LH-MTLC simulator wall time (1000 chains; upper bound 5 x 360 steps; typical "

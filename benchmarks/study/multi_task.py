@@ -8,7 +8,12 @@ evaluated with the same episodes and seeds. Methods:
 - pooling ablations (paper table 4): ``subgoalvla_mean_pool``, ``subgoalvla_max_pool``,
   ``subgoalvla_attn_pool``;
 - planner ablations (table 3): ``subgoalvla_no_planner`` (w/o SP), ``subgoalvla_one_step_trace`` (w/o ST);
-- ``subgoalvla_stage1_only`` (no stage II) and ``subgoalvla_t100`` (T = 100 training timesteps, DDIM 10).
+- ``subgoalvla_stage1_only`` (no stage II) and ``subgoalvla_t100`` (T = 100 training timesteps, DDIM 10);
+- ``multi_task_dit``: LeRobot's language-conditioned diffusion transformer (CLIP vision and text towers),
+  built from a random CLIP saved locally (``random_clip.py``) the size of ``laptop``'s own towers. It stacks
+  its cameras before resizing them, so it needs both of one shape: it trains on ``fixtures84``, the same
+  generated episodes (same seed and tasks) rendered with an 84 px static camera, and ``subgoalvla_84`` is
+  SubgoalVLA on that same data (``laptop`` resizes the static camera to 80 px either way).
 
 Usage::
 
@@ -55,8 +60,31 @@ METHODS = {
         ),
     ),
 }
+#: LeRobot's multi_task_dit at its own defaults except: the random CLIP towers (``--policy.*_encoder_name``),
+#: images resized to 88 px and cropped to the towers' 80 px (its default 224 crop fits no CALVIN camera); the
+#: rate of a model trained from scratch: 3e-4 for all of it, as ``laptop`` gives its own random tower and LLM
+#: (its default 2e-5 with 0.1x for the vision tower assumes pretrained CLIP weights); and its transformer at
+#: 256 x 4 layers instead of 512 x 6 (48 M parameters, 3-7 s per update of 32 on the loaded 2-core machine,
+#: hours for the study's budget; 256 x 4 has 10 M and costs about twice ``laptop``'s update).
+MULTI_TASK_DIT_FLAGS = (
+    "--policy.type=multi_task_dit",
+    "--policy.hidden_dim=256",
+    "--policy.num_layers=4",
+    "--policy.image_resize_shape=[88,88]",
+    "--policy.image_crop_shape=[80,80]",
+    "--policy.optimizer_lr=3e-4",
+    "--policy.vision_encoder_lr_multiplier=1.0",
+)
+METHODS["subgoalvla_84"] = Method("subgoalvla_84", LAPTOP)
+METHODS["multi_task_dit"] = Method("multi_task_dit", MULTI_TASK_DIT_FLAGS)
+#: Methods trained on the 84 px copy of the fixture data (``multi_task_dit`` needs cameras of one shape).
+ON_84_PX_DATA = {"multi_task_dit", "subgoalvla_84"}
 #: Methods trained through both stages (stage II for the last fifth, as the demo does).
-TWO_STAGE = {name for name in METHODS if name not in ("subgoalvla_no_planner", "subgoalvla_stage1_only")}
+TWO_STAGE = {
+    name
+    for name in METHODS
+    if name.startswith("subgoalvla") and name not in ("subgoalvla_no_planner", "subgoalvla_stage1_only")
+}
 
 
 def main() -> None:
@@ -107,19 +135,27 @@ def main() -> None:
             print(f"{method} {r['setting']:<11} {r['task']:<20} {r['successes']}/{r['episodes']}")
         return
     data = DataSpec("fixtures", FIXTURE_TASKS, args.demos)
+    data_84 = DataSpec("fixtures84", FIXTURE_TASKS, args.demos, static_size=84)
     for name in args.methods:
         extra = (f"--policy.stage2_start_step={args.steps * 4 // 5}",) if name in TWO_STAGE else ()
+        if name == "multi_task_dit":
+            from random_clip import save_random_clip
+
+            clip = args.work_dir.resolve() / "random_clip"
+            if not args.dry_run:
+                save_random_clip(clip)
+            extra = (f"--policy.vision_encoder_name={clip}", f"--policy.text_encoder_name={clip}")
         for seed in args.seeds:
             spec = RunSpec(
                 METHODS[name],
                 "multi_task",
-                data,
+                data_84 if name in ON_84_PX_DATA else data,
                 FIXTURE_TASKS,
                 seed,
                 args.steps,
                 args.episodes,
                 extra,
-                dataset_root=args.dataset,
+                dataset_root=None if name in ON_84_PX_DATA else args.dataset,
                 eval_batch_size=args.eval_batch_size,
             )
             if args.dry_run:
