@@ -61,3 +61,48 @@ def test_env_config_passes_the_renderer_to_its_sub_envs() -> None:
         assert env.unwrapped._sim.cameras.renderer == "egl"
     finally:
         env.close()
+
+
+def test_egl_devices_are_enumerated_and_a_device_that_does_not_exist_is_refused(monkeypatch) -> None:
+    from lerobot_subgoalvla.envs.calvin.sim.egl_devices import egl_devices
+
+    devices = egl_devices()
+    assert devices and [d.index for d in devices] == list(range(len(devices)))
+    # pybullet's plugin would end the whole process on an index it lacks; we refuse it before loading
+    monkeypatch.setenv("EGL_VISIBLE_DEVICES", str(len(devices)))
+    with pytest.raises(ValueError, match=f"EGL_VISIBLE_DEVICES='{len(devices)}' names no EGL device"):
+        CalvinSimulation("procedural", static_size=16, gripper_size=16, renderer="egl")
+    cuda = {d.cuda_index for d in devices}
+    missing = next(i for i in range(64) if i not in cuda)
+    monkeypatch.delenv("EGL_VISIBLE_DEVICES")
+    with pytest.raises(ValueError, match=f"CUDA device {missing} is no EGL device"):
+        CalvinSimulation(
+            "procedural", static_size=16, gripper_size=16, renderer="egl", egl_cuda_device=missing
+        )
+
+
+def test_the_egl_device_of_a_cuda_gpu_is_chosen_as_calvin_env_does() -> None:
+    from lerobot_subgoalvla.envs.calvin.sim.egl_devices import EglDevice, choose_index
+
+    # an NVIDIA box whose EGL order is not the CUDA order, plus a software device
+    devices = [EglDevice(0, 1, ""), EglDevice(1, 0, ""), EglDevice(2, None, "EGL_MESA_device_software")]
+    assert choose_index(devices, cuda_device=0, visible=None) == 1
+    assert choose_index(devices, cuda_device=1, visible="2") == 0  # the CUDA choice wins over the variable
+    assert choose_index(devices, cuda_device=None, visible="2") == 2
+    assert choose_index(devices, cuda_device=None, visible=None) == 0
+    with pytest.raises(ValueError, match=r"EGL devices: 0 \(CUDA 1\), 1 \(CUDA 0\), 2 \(no CUDA\)"):
+        choose_index(devices, cuda_device=3, visible=None)
+
+
+def test_env_config_spreads_egl_workers_over_the_listed_cuda_devices() -> None:
+    with pytest.raises(ConfigError, match="needs --env.renderer=egl"):
+        CalvinEnvConfig(task="open_drawer", egl_cuda_devices=[0])
+    with pytest.raises(ConfigError, match="non-empty list of CUDA indices"):
+        CalvinEnvConfig(task="open_drawer", renderer="egl", egl_cuda_devices=[])
+    cfg = CalvinEnvConfig(task="open_drawer", renderer="egl", egl_cuda_devices=[0, 1])
+    views = cfg.create_envs(n_envs=3)["calvin"]
+    shared = next(iter(views.values()))._shared
+    try:
+        assert [fn.keywords["egl_cuda_device"] for fn in shared.env_fns] == [0, 1, 0]
+    finally:
+        shared.close()

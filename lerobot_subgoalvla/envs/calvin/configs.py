@@ -94,6 +94,10 @@ class CalvinEnvConfig(EnvConfig):
     # `"tiny"` (pybullet's CPU TinyRenderer, default) or `"egl"` (OpenGL through pybullet's EGL plugin: how
     # CALVIN rendered its dataset; a model trained on real CALVIN sees such images).
     renderer: str = "tiny"
+    # With `--env.renderer=egl` on NVIDIA GPUs: CUDA devices to render on, e.g. `[0,1]`; eval worker i
+    # renders on the EGL device of CUDA device `i mod len` (calvin_env's mapping). Unset: EGL_VISIBLE_DEVICES
+    # (device 0).
+    egl_cuda_devices: list[int] | None = None
     # If set, every finished chain episode appends one JSON line (chains.py's record) here; `subgoalvla-
     # calvin-report` turns them into CALVIN's LH-1..5 table.
     results_path: str | None = None
@@ -134,6 +138,13 @@ class CalvinEnvConfig(EnvConfig):
         if self.action_mode not in ACTION_MODES:
             raise ConfigError(
                 f"--env.action_mode={self.action_mode!r} is not valid; use one of: {', '.join(ACTION_MODES)}"
+            )
+        if self.egl_cuda_devices is not None and (
+            self.renderer != "egl" or not self.egl_cuda_devices or min(self.egl_cuda_devices) < 0
+        ):
+            raise ConfigError(
+                f"--env.egl_cuda_devices={self.egl_cuda_devices} needs --env.renderer=egl and a non-empty "
+                "list of CUDA indices >= 0, e.g. [0,1]"
             )
         if self.renderer not in RENDERERS:
             raise ConfigError(
@@ -250,9 +261,12 @@ class CalvinEnvConfig(EnvConfig):
         probe = CalvinEnv(**kwargs)  # cheap: the simulator is created on the first reset
         spaces = (probe.observation_space, probe.action_space, dict(probe.metadata))
         probe.close()
-        shared = SharedVectorEnvs(
-            [partial(make_frozen_env, **kwargs)] * n_envs, use_async_envs and n_envs > 1
-        )
+        devices = self.egl_cuda_devices or [None]
+        env_fns = [
+            partial(make_frozen_env, **kwargs, egl_cuda_device=devices[i % len(devices)])
+            for i in range(n_envs)
+        ]
+        shared = SharedVectorEnvs(env_fns, use_async_envs and n_envs > 1)
         return {
             self.type: {task_id: TaskView(shared, options, *spaces) for task_id, options in pinned.items()}
         }

@@ -80,6 +80,8 @@ class CalvinEnv(gym.Env):
             generated on first use (seconds of CPU, once per process).
         renderer: ``"tiny"`` (CPU TinyRenderer) or ``"egl"`` (OpenGL, as CALVIN's data); the EGL context is
             made with the simulator, at the first reset, so each worker process has its own.
+        egl_cuda_device: With ``renderer="egl"`` on NVIDIA: the CUDA GPU whose EGL device renders (None:
+            ``EGL_VISIBLE_DEVICES``, default device 0).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": CALVIN_FPS}
@@ -100,6 +102,7 @@ class CalvinEnv(gym.Env):
         render_mode: str = "rgb_array",
         chains: Mapping[int, calvin_chains.Chain] | None = None,
         renderer: str = "tiny",
+        egl_cuda_device: int | None = None,
     ) -> None:
         check_renderer(renderer)
         _check_arguments(
@@ -115,6 +118,7 @@ class CalvinEnv(gym.Env):
         self.gripper_size = gripper_size
         self.action_mode = action_mode
         self.renderer = renderer
+        self.egl_cuda_device = egl_cuda_device
         self.results_path = Path(results_path) if results_path is not None else None
         self.render_mode = render_mode
         self.metadata = {"render_modes": ["rgb_array"], "render_fps": CALVIN_FPS}
@@ -146,6 +150,7 @@ class CalvinEnv(gym.Env):
                 gripper_size=self.gripper_size,
                 action_mode=self.action_mode,
                 renderer=self.renderer,
+                egl_cuda_device=self.egl_cuda_device,
             )
             # Every episode starts from the just-loaded world, as in a fresh calvin_env: pybullet keeps
             # contact caches across resets, so without this a first reset(seed) differs from later ones.

@@ -31,6 +31,7 @@ from pybullet_utils.bullet_client import BulletClient
 
 from lerobot_subgoalvla.envs.calvin.sim.assets import load_scene_source
 from lerobot_subgoalvla.envs.calvin.sim.cameras import Cameras, check_renderer, load_egl_plugin
+from lerobot_subgoalvla.envs.calvin.sim.egl_devices import select_egl_device
 from lerobot_subgoalvla.envs.calvin.sim.robot import ActionMode, PandaRobot
 from lerobot_subgoalvla.envs.calvin.sim.scene import Scene
 from lerobot_subgoalvla.envs.calvin.sim.stdio import quiet_c_output
@@ -60,6 +61,8 @@ class CalvinSimulation:
             gripper).
         renderer: ``"tiny"`` (pybullet's CPU TinyRenderer) or ``"egl"`` (OpenGL via the EGL plugin, as
             CALVIN's data; see :mod:`.cameras`).
+        egl_cuda_device: With ``renderer="egl"``: render on the EGL device of this CUDA GPU (calvin_env's
+            choice; :mod:`.egl_devices`); None keeps ``EGL_VISIBLE_DEVICES`` (default device 0).
 
     Attributes:
         client: The BulletClient (privileged access for the expert).
@@ -77,8 +80,11 @@ class CalvinSimulation:
         cameras: bool = True,
         action_mode: ActionMode = "relative",
         renderer: str = "tiny",
+        egl_cuda_device: int | None = None,
     ) -> None:
         check_renderer(renderer)
+        if egl_cuda_device is not None and renderer != "egl":
+            raise ValueError(f"egl_cuda_device={egl_cuda_device} needs renderer='egl', got {renderer!r}")
         source = load_scene_source(scene, assets_dir)  # validates names and files before connecting
         self.scene_name = scene
         with quiet_c_output():  # pybullet's "argv[0]=" on connect
@@ -91,6 +97,7 @@ class CalvinSimulation:
             c.setGravity(0, 0, -9.8)
             c.setTimeStep(1.0 / PHYSICS_HZ)
             if cameras and renderer == "egl":
+                select_egl_device(egl_cuda_device)  # the plugin ends the process on a device it lacks
                 load_egl_plugin(c)  # before the first body: loaded later it renders only the background
             # No deterministicOverlappingPairs: calvin_env sets it to 1 in initialize_bullet, but its load()
             # calls resetSimulation afterwards, which restores Bullet's default (0). CALVIN runs with 0, and
