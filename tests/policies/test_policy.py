@@ -45,6 +45,28 @@ def test_forward_gives_finite_losses_and_gradients_reach_every_group(
     assert all(p.grad is None for p in policy.model.backbone.vision_parameters())  # frozen
 
 
+def test_training_draws_depend_on_the_step_alone_and_leave_the_global_rng_as_it_was(
+    make_config, make_policy_and_processors, raw_batch
+) -> None:
+    """Why: LeRobot's --resume shifts the global RNG by one draw; the loss must not depend on that stream."""
+    policy, pre, _ = make_policy_and_processors(make_config())
+    batch = pre(dict(raw_batch))
+    policy.train()
+    torch.manual_seed(0)
+    first, _ = policy.forward(batch)
+    state = torch.get_rng_state()
+    torch.rand(3)  # e.g. a new DataLoader iterator drawing its base seed
+    again, _ = policy.forward(batch)
+    assert torch.equal(first, again)  # same step, same draws, whatever the global stream did
+    torch.set_rng_state(state)
+    policy.forward(batch)
+    assert torch.equal(torch.get_rng_state(), state)  # the forward consumed nothing of the outer stream
+    policy.optimizer_steps += 1
+    assert not torch.equal(policy.forward(batch)[0], first)  # the next step draws anew
+    policy.eval()
+    assert "training_seed" in policy.state_dict()  # saved, so a reload keeps the stream
+
+
 def test_a_non_finite_loss_stops_training_with_the_step_and_the_cause(
     make_config, make_policy_and_processors, raw_batch
 ) -> None:

@@ -27,8 +27,10 @@ dim, ``h`` history steps, ``p`` proprio dim.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections import deque
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +58,15 @@ def _require_online(action: str, alternative: str) -> None:
     """Raise one clear line when ``action`` needs the Hugging Face Hub but offline mode is on."""
     if is_offline_mode():
         raise OSError(f"{action} needs the Hugging Face Hub but HF_HUB_OFFLINE=1 is set; {alternative}")
+
+
+@contextlib.contextmanager
+def _seeded_rng(seed: int, device: torch.device) -> Iterator[None]:
+    """Fork torch's RNG (CPU, and ``device``'s if it is a GPU), seed it, restore it on exit."""
+    gpus = [device.index or 0] if device.type == "cuda" else []
+    with torch.random.fork_rng(devices=gpus, device_type="cuda"):
+        torch.manual_seed(seed)
+        yield
 
 
 class SubgoalVLAPolicy(PreTrainedPolicy):
@@ -87,6 +98,10 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         self.model = SubgoalVLAModel(config)
         # Optimizer steps done so far; saved with the weights so resume/reload keeps the training stage.
         self.register_buffer("optimizer_steps", torch.zeros((), dtype=torch.long))
+        # Base seed of the training draws (noise, timesteps, label dropout, dropout), drawn from the seeded
+        # global RNG and saved with the weights: each step's draws then depend on (seed, step) alone, so a
+        # `--resume=true` run equals an uninterrupted one (see `_step_rng`).
+        self.register_buffer("training_seed", torch.randint(0, 2**31, (), dtype=torch.long))
         self._history = StateHistoryBuffer(config.state_history_len)
         self._queue: deque[Tensor] = deque(maxlen=config.n_action_steps)
         self._image_sizes_checked = False
@@ -122,7 +137,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
             if key not in batch:
                 raise ValueError(self.config.missing_feature_message(key))
         stage = self.stage
-        losses = self.model.compute_losses(batch, stage)
+        with self._step_rng(batch):
+            losses = self.model.compute_losses(batch, stage)
         if self.training and not torch.isfinite(losses["loss"]):
             # Stop before the optimizer step: a non-finite loss would poison every weight, and LeRobot would
             # go on logging NaN and save a broken checkpoint.
@@ -139,6 +155,22 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
             "stage": 1 if stage == "stage1" else 2,
         }
         return losses["loss"], logs
+
+    def _step_rng(self, batch: dict[str, Tensor]) -> contextlib.AbstractContextManager:
+        """In training, the global RNG seeded from (training_seed, step, rank) for one forward, then restored.
+
+        Why: LeRobot 0.6.1 restores the RNG states on ``--resume`` before it builds a new DataLoader iterator,
+        whose base seed is one more draw from the global generator, so every later draw of a resumed run would
+        be shifted by one against the uninterrupted run. Keyed draws make a resumed run identical (tested in
+        ``test_lerobot_integration.py``); the rank keeps processes of a multi-GPU run from sharing noise.
+        The outer RNG stream is left as it was, so LeRobot's own draws are unchanged.
+        """
+        if not self.training:
+            return contextlib.nullcontext()
+        device = next(iter(v for v in batch.values() if isinstance(v, Tensor))).device
+        rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
+        seed = (int(self.training_seed) * 1_000_003 + int(self.optimizer_steps)) * 1009 + rank
+        return _seeded_rng(seed % 2**63, device)
 
     def get_optim_params(self) -> list[dict[str, Any]]:
         """Parameter groups with the paper's learning rates (table 8); frozen parameters are left out.
