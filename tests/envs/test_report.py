@@ -121,10 +121,15 @@ def _bad_inputs(tmp_path: Path) -> dict[str, list[str]]:
         "duplicate": [str(good), str(dup)],
         "malformed": [str(malformed)],
         "n_episodes": [str(wrong_count), "--num-chains", "10"],
+        "chain_id_out_of_range": [
+            str(_write_jsonl(tmp_path / "far.jsonl", HAND_MADE[:2])),
+            "--num-chains",
+            "1",
+        ],
     }
 
 
-@pytest.mark.parametrize("case", ["missing", "duplicate", "malformed", "n_episodes"])
+@pytest.mark.parametrize("case", ["missing", "duplicate", "malformed", "n_episodes", "chain_id_out_of_range"])
 def test_cli_bad_input(tmp_path: Path, caplog: pytest.LogCaptureFixture, case: str) -> None:
     argv = _bad_inputs(tmp_path)[case] + ["--output-dir", str(tmp_path / "out")]
     with caplog.at_level(logging.ERROR), pytest.raises(SystemExit) as exit_info:

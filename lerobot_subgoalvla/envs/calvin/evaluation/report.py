@@ -164,7 +164,16 @@ def load_results(paths: Sequence[Path], chains_path: Path | None, num_chains: in
         else:
             shards[str(path)] = read_episode_results(path)
     results = merge_results(shards)
-    if chains_path is not None:
+    # A chain id outside the list means results of another list (or a damaged file), which would otherwise
+    # be counted silently; the tasks are compared when the evaluation's own list is given.
+    if chains_path is None:
+        for result in results:
+            if not 0 <= result.chain_id < num_chains:
+                raise ValueError(
+                    f"chain {result.chain_id}: not one of CALVIN's {num_chains} chains (ids 0.."
+                    f"{num_chains - 1}); pass the evaluation's chain list with --chains, or --num-chains"
+                )
+    else:
         known = tasks_by_chain()
         for result in results:
             if known.get(result.chain_id) != result.tasks:
