@@ -293,7 +293,7 @@ def test_chain_on_calvins_scene_d(calvin_assets_dir: Path) -> None:
     env.close()
 
 
-@pytest.mark.parametrize("task", ["open_drawer", "move_slider_left", "push_red_block_right"])
+@pytest.mark.parametrize("task", ["open_drawer", "move_slider_left", "push_red_block_right", "unstack_block"])
 def test_the_same_seed_gives_the_same_start_whatever_ran_before(task: str) -> None:
     """A fresh env's first reset(seed) equals the next one with that seed, and one after other episodes."""
     env = CalvinEnv(task, static_size=16, gripper_size=16, episode_length=20)
