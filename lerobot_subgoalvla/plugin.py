@@ -3,7 +3,9 @@
 - the policy type ``subgoalvla`` (``SubgoalVLAConfig``) and its LR scheduler ``subgoalvla_two_stage_cosine``;
 - the processor steps ``subgoalvla_tokenizer_processor`` and ``subgoalvla_proprio_normalizer``, which a saved
   pipeline names and ``PolicyProcessorPipeline.from_pretrained`` looks up;
-- the env type ``calvin`` (``CalvinEnvConfig``).
+- the env type ``calvin`` (``CalvinEnvConfig``);
+- a one-line notice instead of LeRobot's long torchcodec report on machines without FFmpeg's shared libraries
+  (``decoder_probe``).
 
 LeRobot's ``register_third_party_plugins()`` imports it through the discovery shim
 ``lerobot_policy_subgoalvla`` (``lerobot-train``, ``lerobot-eval``, ...). Scripts of your own import it once:
@@ -15,6 +17,7 @@ network, transformers) when a policy is built, and the tokenizer step loads the 
 is first used.
 """
 
+from lerobot_subgoalvla import decoder_probe
 from lerobot_subgoalvla.envs.calvin.configs import CalvinEnvConfig
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
 from lerobot_subgoalvla.policies.subgoalvla.processor_subgoalvla import (
@@ -22,6 +25,8 @@ from lerobot_subgoalvla.policies.subgoalvla.processor_subgoalvla import (
     make_subgoalvla_pre_post_processors,
 )
 from lerobot_subgoalvla.policies.subgoalvla.proprio_normalization import ProprioNormalizerProcessorStep
+
+decoder_probe.install()
 
 __all__ = [
     "CalvinEnvConfig",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import subprocess
@@ -140,3 +141,30 @@ def test_bad_env_values_through_lerobot_eval_end_on_one_line(tmp_path, capsys, f
     got_code, last_line = _lerobot_main("lerobot_eval", argv, capsys)
     assert got_code == code and message in last_line
     assert not (tmp_path / "eval").exists()
+
+
+def test_a_torchcodec_that_cannot_load_ffmpeg_is_reported_in_one_line(monkeypatch, caplog) -> None:
+    """LeRobot's own probe, with torchcodec's loader failing as it does without FFmpeg's libraries."""
+    import importlib
+
+    from lerobot.utils import import_utils
+
+    import lerobot_subgoalvla.plugin  # noqa: F401  (installs the filter)
+    from lerobot_subgoalvla.decoder_probe import ONE_LINE
+
+    real_import = importlib.import_module
+    loader_report = "Could not load libtorchcodec. Likely causes:\n" + "\n".join(
+        f"[start of libtorchcodec loading traceback]\nFFmpeg version {v}: libavutil.so.{v + 52}: cannot open"
+        for v in (7, 6, 5, 4)
+    )
+
+    def failing_import(name: str, *args, **kwargs):
+        if name == "torchcodec":
+            raise RuntimeError(loader_report)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(importlib, "import_module", failing_import)
+    with caplog.at_level(logging.WARNING, logger="lerobot.utils.import_utils"):
+        assert import_utils.get_safe_default_video_backend() == "pyav"
+    messages = [r.getMessage() for r in caplog.records if r.name == "lerobot.utils.import_utils"]
+    assert messages == [ONE_LINE] and "\n" not in ONE_LINE
