@@ -12,7 +12,9 @@ Usage::
     python benchmarks/train_throughput.py --dataset-root outputs/demo/dataset --repo-id local/calvin_demo
     python benchmarks/train_throughput.py ... --policies tiny laptop --threads 1 2 --workers 0 1 2
 
-The dataset needs cameras of one shape for ``diffusion`` (LeRobot's requirement); it is skipped otherwise.
+The dataset needs cameras of one shape for ``diffusion`` and ``multi_task_dit`` (LeRobot's requirement); they
+are skipped otherwise. ``multi_task_dit`` is configured as in the study (``study/multi_task.py``: a random
+CLIP saved to a temporary folder, nothing downloads).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent / "study"))
 from lerobot_subgoalvla.demo_report import parse_train_log  # noqa: E402
 
 POLICIES = {
@@ -39,7 +42,23 @@ POLICIES = {
         "--policy.crop_shape=null",
     ],
     "act": ["--policy.type=act", "--policy.pretrained_backbone_weights=null"],
+    "multi_task_dit": [],  # the study's flags plus the random CLIP's folder (_policy_flags)
 }
+SAME_SHAPE_CAMERAS = ("diffusion", "multi_task_dit")
+
+
+def _policy_flags(policy: str, scratch: Path) -> list[str]:
+    if policy != "multi_task_dit":
+        return POLICIES[policy]
+    from multi_task import MULTI_TASK_DIT_FLAGS
+    from random_clip import save_random_clip
+
+    clip = save_random_clip(scratch / "random_clip")
+    return [
+        *MULTI_TASK_DIT_FLAGS,
+        f"--policy.vision_encoder_name={clip}",
+        f"--policy.text_encoder_name={clip}",
+    ]
 
 
 def cameras_share_a_shape(root: Path) -> bool:
@@ -55,7 +74,7 @@ def measure(
         log = Path(out) / "train.log"
         command = [
             "lerobot-train",
-            *POLICIES[policy],
+            *_policy_flags(policy, Path(out)),
             "--policy.push_to_hub=false",
             "--policy.device=cpu",
             f"--dataset.repo_id={repo_id}",
@@ -112,23 +131,23 @@ def main() -> None:
     args = parser.parse_args()
     same_shape = cameras_share_a_shape(args.dataset_root)
     print(
-        f"{'policy':<10} {'threads':>7} {'workers':>7} {'decoder':>10} {'batch':>5} {'updt_s':>7} "
+        f"{'policy':<14} {'threads':>7} {'workers':>7} {'decoder':>10} {'batch':>5} {'updt_s':>7} "
         f"{'data_s':>7} "
         f"{'samples/s':>9}"
     )
     for policy in args.policies:
-        if policy == "diffusion" and not same_shape:
-            print(f"{policy:<10} skipped: LeRobot's diffusion needs all cameras of one shape")
+        if policy in SAME_SHAPE_CAMERAS and not same_shape:
+            print(f"{policy:<14} skipped: LeRobot's {policy} needs all cameras of one shape")
             continue
         settings = itertools.product(args.threads, args.workers, args.video_backends)
         for threads, workers, backend in settings:
             run = (args.dataset_root, args.repo_id, args.steps, args.batch_size)
             r = measure(policy, *run, threads, workers, backend)
             if "error" in r:
-                print(f"{policy:<10} failed: {r['error']}")
+                print(f"{policy:<14} failed: {r['error']}")
                 continue
             print(
-                f"{policy:<10} {threads:>7} {workers:>7} {backend:>10} {r['batch']:>5} {r['updt_s']:>7.3f} "
+                f"{policy:<14} {threads:>7} {workers:>7} {backend:>10} {r['batch']:>5} {r['updt_s']:>7.3f} "
                 f"{r['data_s']:>7.3f} {r['samples_per_s']:>9.1f}"
             )
 
