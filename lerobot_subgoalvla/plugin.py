@@ -5,7 +5,8 @@
   pipeline names and ``PolicyProcessorPipeline.from_pretrained`` looks up;
 - the env type ``calvin`` (``CalvinEnvConfig``);
 - a one-line notice instead of LeRobot's long torchcodec report on machines without FFmpeg's shared libraries
-  (``decoder_probe``).
+  (``decoder_probe``), and one ``error:`` line instead of a traceback when the data does not fit the policy
+  (``config_error.DatasetContractError``, raised after LeRobot parsed its config).
 
 LeRobot's ``register_third_party_plugins()`` imports it through the discovery shim
 ``lerobot_policy_subgoalvla`` (``lerobot-train``, ``lerobot-eval``, ...). Scripts of your own import it once:
@@ -18,6 +19,7 @@ is first used.
 """
 
 from lerobot_subgoalvla import decoder_probe
+from lerobot_subgoalvla.config_error import install_one_line_excepthook
 from lerobot_subgoalvla.envs.calvin.configs import CalvinEnvConfig
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
 from lerobot_subgoalvla.policies.subgoalvla.processor_subgoalvla import (
@@ -27,6 +29,7 @@ from lerobot_subgoalvla.policies.subgoalvla.processor_subgoalvla import (
 from lerobot_subgoalvla.policies.subgoalvla.proprio_normalization import ProprioNormalizerProcessorStep
 
 decoder_probe.install()
+install_one_line_excepthook()
 
 __all__ = [
     "CalvinEnvConfig",

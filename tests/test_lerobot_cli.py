@@ -34,6 +34,25 @@ def test_bad_env_value_is_one_line_without_a_traceback() -> None:
     assert "ParsingError" not in result.stderr
 
 
+def test_a_dataset_without_a_contract_feature_is_one_line_through_lerobot_train(tmp_path) -> None:
+    """Found after parsing, in make_policy: the plugin's excepthook prints it without a traceback."""
+    from helpers.lerobot_datasets import DEFAULT_REPO_ID, make_tiny_calvin_dataset
+
+    root = tmp_path / "no_trace"
+    make_tiny_calvin_dataset(
+        root, num_episodes=1, episode_len=6, drop_features=("observation.subgoal_trace",)
+    )
+    result = _run(["lerobot-train", "--policy.type=subgoalvla", "--policy.preset=tiny",
+                   "--policy.push_to_hub=false", f"--dataset.repo_id={DEFAULT_REPO_ID}",
+                   f"--dataset.root={root}", f"--output_dir={tmp_path / 'out'}", "--steps=1",
+                   "--wandb.enable=false"])  # fmt: skip
+    assert result.returncode == 1
+    assert "Traceback" not in result.stderr
+    last = result.stderr.strip().splitlines()[-1]
+    assert "error: SubgoalVLA needs the feature 'observation.subgoal_trace'" in last
+    assert "subgoalvla-convert-calvin" in last
+
+
 def test_every_policy_and_env_flag_has_a_one_line_help() -> None:
     import re
 

@@ -36,7 +36,7 @@ from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 from lerobot.optim import AdamWConfig
 from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_subgoalvla.config_error import ConfigError
+from lerobot_subgoalvla.config_error import ConfigError, DatasetContractError
 from lerobot_subgoalvla.policies.subgoalvla.config_components import (
     PRESET_VALUES,
     BackboneConfig,
@@ -281,20 +281,21 @@ class SubgoalVLAConfig(PreTrainedConfig):
         inputs = self.input_features or {}
         for key in (STATE_KEY, STATIC_CAMERA_KEY, GRIPPER_CAMERA_KEY):
             if key not in inputs:
-                raise ValueError(self.missing_feature_message(key))
+                raise DatasetContractError(self.missing_feature_message(key))
         state_dim = inputs[STATE_KEY].shape[-1]
         for key, length in ((STATE_HISTORY_KEY, self.state_history_len), (SUBGOAL_TRACE_KEY, None)):
             if key in inputs:
                 self._check_sequence_shape(key, tuple(inputs[key].shape), state_dim, length)
         if self.action_feature is None:
-            raise ValueError(self.missing_feature_message(ACTION_KEY))
+            raise DatasetContractError(self.missing_feature_message(ACTION_KEY))
 
     def validate_dataset_features(self, features: dict[str, dict[str, Any]]) -> None:
         """Check a training dataset's features (``LeRobotDatasetMetadata.features``) against the data
         contract.
 
         Raises:
-            ValueError: one line naming the missing/mis-shaped feature and the converter that writes it.
+            DatasetContractError: one line naming the missing/mis-shaped feature and the converter that
+                writes it.
         """
         for key in (
             STATE_KEY,
@@ -305,7 +306,7 @@ class SubgoalVLAConfig(PreTrainedConfig):
             ACTION_KEY,
         ):
             if key not in features:
-                raise ValueError(self.missing_feature_message(key))
+                raise DatasetContractError(self.missing_feature_message(key))
         state_dim = tuple(features[STATE_KEY]["shape"])[-1]
         self._check_sequence_shape(
             STATE_HISTORY_KEY, tuple(features[STATE_HISTORY_KEY]["shape"]), state_dim, self.state_history_len
@@ -323,17 +324,17 @@ class SubgoalVLAConfig(PreTrainedConfig):
         self, key: str, shape: tuple[int, ...], state_dim: int, length: int | None
     ) -> None:
         if len(shape) != 2 or shape[1] != state_dim:
-            raise ValueError(
+            raise DatasetContractError(
                 f"dataset feature {key!r} has shape {shape}, expected (steps, {state_dim}); "
                 f"re-create it with `{CONVERTER_COMMAND}`"
             )
         if length is not None and shape[0] != length:
-            raise ValueError(
+            raise DatasetContractError(
                 f"dataset feature {key!r} has {shape[0]} steps but --policy.state_history_len={length}; "
                 f"set the flag to {shape[0]} or convert with a matching history length"
             )
         if key == SUBGOAL_TRACE_KEY and shape[0] < self.subgoal_trace_len:
-            raise ValueError(
+            raise DatasetContractError(
                 f"dataset feature {key!r} has {shape[0]} steps but "
                 f"--policy.subgoal_trace_len={self.subgoal_trace_len}; "
                 f"lower the flag or convert with a longer trace"

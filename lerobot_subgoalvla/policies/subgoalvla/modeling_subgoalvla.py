@@ -40,6 +40,7 @@ from lerobot.configs import FeatureType
 from lerobot.policies import PreTrainedPolicy
 from torch import Tensor
 
+from lerobot_subgoalvla.config_error import DatasetContractError
 from lerobot_subgoalvla.datasets_conversion.subgoal_traces import StateHistoryBuffer
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
     STATE_HISTORY_KEY,
@@ -135,7 +136,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         """
         for key in (STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY):
             if key not in batch:
-                raise ValueError(self.config.missing_feature_message(key))
+                raise DatasetContractError(self.config.missing_feature_message(key))
         stage = self.stage
         with self._step_rng(batch):
             losses = self.model.compute_losses(batch, stage)
