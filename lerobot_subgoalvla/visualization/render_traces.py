@@ -121,6 +121,7 @@ def load_policy(policy_path: str | Path) -> tuple[Any, Any, Any]:
 
     Raises:
         FileNotFoundError: ``policy_path`` is not a checkpoint directory (no ``config.json``).
+        ValueError: the checkpoint is of another policy type.
     """
     import lerobot_subgoalvla.plugin  # noqa: F401  (registers the policy type before the config is parsed)
 
@@ -131,6 +132,10 @@ def load_policy(policy_path: str | Path) -> tuple[Any, Any, Any]:
             "outputs/train/<run>/checkpoints/last/pretrained_model"
         )
     cfg = PreTrainedConfig.from_pretrained(path)
+    if cfg.type != "subgoalvla":
+        raise ValueError(
+            f"--policy-path {path}: a {cfg.type!r} checkpoint; only SubgoalVLA predicts subgoal traces"
+        )
     cfg.device = "cpu"
     policy = get_policy_class(cfg.type).from_pretrained(path, config=cfg)
     preprocessor, postprocessor = make_pre_post_processors(

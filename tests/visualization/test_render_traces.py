@@ -141,3 +141,20 @@ def test_cli_bad_path_is_one_line_and_nonzero(tmp_path: Path, caplog) -> None:
     assert exit_info.value.code == 1
     assert "no config.json" in caplog.text and "pretrained_model" in caplog.text
     assert not (tmp_path / "a.mp4").exists()
+
+
+def test_cli_refuses_a_checkpoint_of_another_policy_type(tmp_path: Path, caplog) -> None:
+    import json
+
+    checkpoint = tmp_path / "act_checkpoint"
+    checkpoint.mkdir()
+    from lerobot.policies.act.configuration_act import ACTConfig
+
+    ACTConfig().save_pretrained(checkpoint)  # writes config.json with "type": "act"
+    assert json.loads((checkpoint / "config.json").read_text())["type"] == "act"
+    argv = ["--policy-path", str(checkpoint), "--task", "open_drawer", "--output", str(tmp_path / "a.png")]
+    with pytest.raises(SystemExit) as exit_info:
+        render_traces.main(argv)
+    assert exit_info.value.code == 1
+    assert "a 'act' checkpoint; only SubgoalVLA predicts subgoal traces" in caplog.text
+    assert not (tmp_path / "a.png").exists()
