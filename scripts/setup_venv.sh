@@ -35,6 +35,12 @@ if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ]; then
     echo "Installing lerobot_policy_subgoalvla and its dependencies into $VENV (first time: several minutes)"
     VIRTUAL_ENV="$VENV" "$VENV/bin/uv" pip install --python "$VENV/bin/python" -e "$REPO_ROOT[dev,viz]"
     echo "$WANT" > "$STAMP"
+    # LeRobot's default video decoder needs FFmpeg's shared libraries (system packages, not pip's).
+    if ! "$VENV/bin/python" -c "import torchcodec" >/dev/null 2>&1; then
+        echo "Note: torchcodec cannot load FFmpeg's shared libraries; LeRobot will decode videos with PyAV (slower)." \
+             "For torchcodec on Debian 12: apt-get install libavutil57 libavcodec59 libavformat59 libavdevice59" \
+             "libavfilter8 libswscale6 libswresample4"
+    fi
 fi
 # Compiled bytecode makes each of the many subprocesses (lerobot-train, workers) start seconds faster.
 unset PYTHONDONTWRITEBYTECODE
