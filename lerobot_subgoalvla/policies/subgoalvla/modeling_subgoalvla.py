@@ -138,7 +138,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
             if key not in batch:
                 raise DatasetContractError(self.config.missing_feature_message(key))
         stage = self.stage
-        with self._step_rng(batch):
+        with self._step_rng():
             losses = self.model.compute_losses(batch, stage)
         if self.training and not torch.isfinite(losses["loss"]):
             # Stop before the optimizer step: a non-finite loss would poison every weight, and LeRobot would
@@ -157,7 +157,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         }
         return losses["loss"], logs
 
-    def _step_rng(self, batch: dict[str, Tensor]) -> contextlib.AbstractContextManager:
+    def _step_rng(self) -> contextlib.AbstractContextManager:
         """In training, the global RNG seeded from (training_seed, step, rank) for one forward, then restored.
 
         Why: LeRobot 0.6.1 restores the RNG states on ``--resume`` before it builds a new DataLoader iterator,
@@ -168,7 +168,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         """
         if not self.training:
             return contextlib.nullcontext()
-        device = next(iter(v for v in batch.values() if isinstance(v, Tensor))).device
+        device = self.optimizer_steps.device  # the policy's device: the batch is moved there first
         rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
         seed = (int(self.training_seed) * 1_000_003 + int(self.optimizer_steps)) * 1009 + rank
         return _seeded_rng(seed % 2**63, device)
