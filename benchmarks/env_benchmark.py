@@ -14,7 +14,7 @@ average is printed for context.
 From the total it estimates the simulator-only wall time of the 1000-chain LH-MTLC evaluation (calvin-spec
 4.3): upper bound 1000 x 5 x 360 steps (every subtask times out), and a typical case in which each chain
 completes ``--typical-length`` subtasks of ``--typical-subtask-steps`` steps and then fails one at 360 steps.
-Policy inference is not included.
+Policy inference is added with ``--policy-ms-per-chunk`` (e.g. the "chunk CPU" column of ``policy_benchmark.py``).
 
 ``--breakdown`` adds where the static camera's time goes: its CPU ms with each body of the scene removed (the
 difference is that body's share) and at other image sizes (TinyRenderer's cost follows the shaded pixels, not
@@ -123,8 +123,8 @@ def static_breakdown(scene: str, assets_dir: Path | None, renders: int = 15) -> 
 def lh_mtlc_hours(
     steps_per_s: float, workers: int, typical_length: float, typical_subtask_steps: int
 ) -> tuple:
-    """(upper bound, typical) simulator hours of the 1000-chain evaluation on ``workers`` single-core
-    workers."""
+    """(upper bound, typical) hours of the 1000-chain evaluation on ``workers`` single-core workers at
+    ``steps_per_s`` control steps per second per worker."""
     upper_steps = CHAINS * SUBTASKS * MAX_STEPS
     per_chain = typical_length * typical_subtask_steps + (MAX_STEPS if typical_length < SUBTASKS else 0)
     typical_steps = CHAINS * per_chain
@@ -148,6 +148,13 @@ def main() -> None:
         "--typical-length", type=float, default=3.0, help="completed subtasks per chain (typical)"
     )
     parser.add_argument("--typical-subtask-steps", type=int, default=90, help="steps of a completed subtask")
+    parser.add_argument(
+        "--policy-ms-per-chunk",
+        type=float,
+        default=0.0,
+        help="policy CPU ms per action chunk added to the estimate (policy_benchmark.py's 'chunk CPU'; 0: none)",
+    )
+    parser.add_argument("--actions-per-chunk", type=int, default=8, help="actions executed per chunk")
     parser.add_argument(
         "--renderers", nargs="+", default=["tiny", "egl"], choices=["tiny", "egl"], help="camera renderers"
     )
@@ -199,16 +206,23 @@ def main() -> None:
             for what, ms in static_breakdown(scene, Path(assets) if assets else None):
                 print(f"{scene:<11} {what:<36} {ms:>7.2f}")
     print()
+    policy_ms_per_step = args.policy_ms_per_chunk / args.actions_per_chunk
+    inference = (
+        f"policy {args.policy_ms_per_chunk:g} ms per chunk of {args.actions_per_chunk}"
+        if args.policy_ms_per_chunk
+        else "simulator only"
+    )
     print(
-        "LH-MTLC simulator wall time (1000 chains; upper bound 5 x 360 steps; typical "
+        "LH-MTLC wall time (1000 chains; upper bound 5 x 360 steps; typical "
         f"{args.typical_length:g} "
-        f"x {args.typical_subtask_steps} steps + one 360-step failure), hours, with cameras:"
+        f"x {args.typical_subtask_steps} steps + one 360-step failure), hours, with cameras, {inference}:"
     )
     print(f"{'scene':<11} {'workers':>7} {'upper h':>8} {'typical h':>9}")
     for scene, r in results.items():
+        steps_per_s = 1000 / (r["total_ms"] + policy_ms_per_step)
         for workers in args.workers:
             upper, typical = lh_mtlc_hours(
-                r["steps_per_s"], workers, args.typical_length, args.typical_subtask_steps
+                steps_per_s, workers, args.typical_length, args.typical_subtask_steps
             )
             print(f"{scene:<11} {workers:>7} {upper:>8.2f} {typical:>9.2f}")
 
