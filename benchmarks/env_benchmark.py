@@ -14,7 +14,8 @@ average is printed for context.
 From the total it estimates the simulator-only wall time of the 1000-chain LH-MTLC evaluation (calvin-spec
 4.3): upper bound 1000 x 5 x 360 steps (every subtask times out), and a typical case in which each chain
 completes ``--typical-length`` subtasks of ``--typical-subtask-steps`` steps and then fails one at 360 steps.
-Policy inference is added with ``--policy-ms-per-chunk`` (e.g. the "chunk CPU" column of ``policy_benchmark.py``).
+Policy inference is added with ``--policy-ms-per-chunk`` (e.g. the "chunk CPU" column of
+``policy_benchmark.py``).
 
 ``--breakdown`` adds where the static camera's time goes: its CPU ms with each body of the scene removed (the
 difference is that body's share) and at other image sizes (TinyRenderer's cost follows the shaded pixels, not
@@ -152,7 +153,7 @@ def main() -> None:
         "--policy-ms-per-chunk",
         type=float,
         default=0.0,
-        help="policy CPU ms per action chunk added to the estimate (policy_benchmark.py's 'chunk CPU'; 0: none)",
+        help="policy CPU ms per action chunk for the estimate (policy_benchmark.py's 'chunk CPU'; 0: none)",
     )
     parser.add_argument("--actions-per-chunk", type=int, default=8, help="actions executed per chunk")
     parser.add_argument(
