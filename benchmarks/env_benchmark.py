@@ -155,7 +155,12 @@ def main() -> None:
         default=0.0,
         help="policy CPU ms per action chunk for the estimate (policy_benchmark.py's 'chunk CPU'; 0: none)",
     )
-    parser.add_argument("--actions-per-chunk", type=int, default=8, help="actions executed per chunk")
+    parser.add_argument(
+        "--actions-per-chunk",
+        type=int,
+        default=8,
+        help="actions executed per chunk (the policy's n_action_steps)",
+    )
     parser.add_argument(
         "--renderers", nargs="+", default=["tiny", "egl"], choices=["tiny", "egl"], help="camera renderers"
     )
