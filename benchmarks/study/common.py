@@ -5,11 +5,12 @@ an evaluation and one record per evaluated task in ``benchmarks/study/results.js
 the commands a user runs (``subgoalvla-generate-calvin``, ``subgoalvla-convert-calvin``, ``lerobot-train``,
 ``lerobot-eval``) in subprocesses, with one thread each (``OMP_NUM_THREADS=1``: 2-core machines oversubscribe
 otherwise). A run whose records are already in the results file is skipped, a finished dataset or checkpoint
-is reused, so an interrupted study resumes where it stopped; records are appended atomically.
+is reused, so an interrupted study resumes where it stopped; asking for more evaluation episodes than a record
+has continues its evaluation from the next seed. The results file is rewritten atomically.
 
 Record keys (the issue's contract): ``method``, ``setting`` (single_task | multi_task | lh_mtlc), ``task``,
 ``seed``, ``episodes``, ``successes`` (+ ``avg_len`` for lh_mtlc), ``train_samples``, ``train_seconds``,
-``scene``; plus ``samples_per_s``, ``latency_ms_per_step`` (the evaluation's wall time per env step, policy
+``scene``; plus ``samples_per_s``, ``eval_seconds`` and ``eval_seconds_per_episode`` (wall time, policy
 and simulator together), ``machine`` and the exact ``train_command``.
 """
 
@@ -163,17 +164,40 @@ def load_records(path: Path = RESULTS_PATH) -> list[dict]:
     return json.loads(path.read_text()) if path.is_file() else []
 
 
-def append_records(records: list[dict], path: Path = RESULTS_PATH) -> None:
-    """Add ``records`` to the results file (written to a temporary file, then renamed)."""
-    merged = load_records(path) + records
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(merged, indent=1) + "\n")
-    tmp.replace(path)
+def record_key(record: dict) -> tuple:
+    """What identifies a record: (method, setting, task, seed, training samples)."""
+    return (record["method"], record["setting"], record["task"], record["seed"], record["train_samples"])
 
 
-def _done(spec: RunSpec, records: list[dict]) -> bool:
-    keys = {(r["method"], r["setting"], r["task"], r["seed"]) for r in records}
-    return all((spec.method.name, spec.setting, task, spec.seed) in keys for task in spec.eval_tasks)
+def store_records(records: list[dict], path: Path = RESULTS_PATH) -> None:
+    """Add ``records`` to the results file, replacing those with the same :func:`record_key` (an evaluation
+    continued to more episodes); written to a temporary file, then renamed."""
+    import fcntl
+
+    replaced = {record_key(r) for r in records}
+    # Two study commands may store at once: the lock keeps one from dropping the other's records.
+    with path.with_suffix(".lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        merged = [r for r in load_records(path) if record_key(r) not in replaced] + records
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(merged, indent=1) + "\n")
+        tmp.replace(path)
+
+
+def _previous(spec: RunSpec, records: list[dict]) -> dict[str, dict]:
+    """Task -> the record this run already has in ``records``."""
+    samples = spec.steps * spec.method.batch_size
+    return {
+        r["task"]: r
+        for r in records
+        if record_key(r)[:2] == (spec.method.name, spec.setting)
+        and (r["seed"], r["train_samples"]) == (spec.seed, samples)
+        and r["task"] in spec.eval_tasks
+    }
+
+
+def _done(spec: RunSpec, previous: dict[str, dict]) -> bool:
+    return all(task in previous and previous[task]["episodes"] >= spec.episodes for task in spec.eval_tasks)
 
 
 def _last_train_metrics(log_path: Path) -> dict[str, float]:
@@ -183,14 +207,31 @@ def _last_train_metrics(log_path: Path) -> dict[str, float]:
     return records[-1] if records else {}
 
 
+def _checkpoint(out: Path) -> Path:
+    return out / "train" / "checkpoints" / "last" / "pretrained_model"
+
+
 def execute(spec: RunSpec, work: Path) -> list[dict]:
-    """Train (or reuse the checkpoint), evaluate every task, append and return the records."""
-    if _done(spec, load_records()):
+    """Train (or reuse the checkpoint), evaluate every task, store and return the records.
+
+    A run recorded with fewer episodes than ``spec.episodes`` continues its evaluation from the next seed with
+    the same checkpoint, also for a run imported from a demo folder (``--import-demo``) that still exists.
+    """
+    previous = _previous(spec, load_records())
+    if _done(spec, previous):
         logger.info("%s: already in %s, skipped", spec.run_name, RESULTS_PATH)
         return []
+    source = next((Path(r["source"]) for r in previous.values() if r.get("source")), None)
+    if source is not None and _checkpoint(source).is_dir():
+        logger.info("%s: continuing the evaluation of %s", spec.run_name, source)
+        records = [
+            {**previous[task], **_evaluate(spec, task, _checkpoint(source), source)}
+            for task in spec.eval_tasks
+        ]
+        store_records(records)
+        return records
     root = spec.dataset_root or spec.data.prepare(work)
     out = work / "runs" / spec.run_name
-    checkpoint = out / "train" / "checkpoints" / "last" / "pretrained_model"
     train_log = out / "train.log"
     timing = out / "train_seconds.txt"
     train_command = [
@@ -218,64 +259,69 @@ def execute(spec: RunSpec, work: Path) -> list[dict]:
         timing.parent.mkdir(parents=True, exist_ok=True)
         timing.write_text(f"{run(train_command, train_log):.1f}\n")
     metrics = _last_train_metrics(train_log)
-    records = []
-    for task in spec.eval_tasks:
-        records.append(
-            _evaluate(spec, task, checkpoint, out, float(timing.read_text()), metrics, train_command)
-        )
-    append_records(records)
-    return records
-
-
-def _evaluate(
-    spec: RunSpec,
-    task: str,
-    checkpoint: Path,
-    out: Path,
-    train_seconds: float,
-    metrics: dict[str, float],
-    train_command: list[str],
-) -> dict:
-    eval_dir = out / "eval" / task
-    size_flags = [
-        f"--env.static_image_size={spec.data.static_size}",
-        f"--env.gripper_image_size={spec.data.gripper_size}",
-    ]
-    if not (eval_dir / "eval_info.json").is_file():
-        run(
-            [
-                "lerobot-eval",
-                f"--policy.path={checkpoint}",
-                "--env.type=calvin",
-                f"--env.task={task}",
-                *size_flags,
-                f"--eval.n_episodes={spec.episodes}",
-                f"--eval.batch_size={spec.eval_batch_size}",
-                f"--eval.use_async_envs={str(spec.eval_batch_size > 1).lower()}",
-                f"--output_dir={eval_dir}",
-                f"--seed={EVAL_SEED}",
-            ],
-            out / f"eval_{task}.log",
-        )
-    from lerobot_subgoalvla.demo_report import episode_successes
-
-    info = json.loads((eval_dir / "eval_info.json").read_text())
-    successes = episode_successes(info)
-    return {
-        "method": spec.method.name,
-        "setting": spec.setting,
-        "task": task,
-        "seed": spec.seed,
-        "episodes": len(successes),
-        "successes": sum(successes),
+    training = {
         "train_samples": spec.steps * spec.method.batch_size,
-        "train_seconds": round(train_seconds, 1),
+        "train_seconds": round(float(timing.read_text()), 1),
         "samples_per_s": metrics.get("smp/s"),
-        "eval_seconds_per_episode": info["overall"].get("eval_ep_s"),
-        "eval_seconds": info["overall"].get("eval_s"),
         "scene": SCENE,
         "machine": machine(),
         "train_command": shlex.join(train_command),
+    }
+    records = [
+        {
+            "method": spec.method.name,
+            "setting": spec.setting,
+            "task": task,
+            "seed": spec.seed,
+            **_evaluate(spec, task, _checkpoint(out), out),
+            **training,
+        }
+        for task in spec.eval_tasks
+    ]
+    store_records(records)
+    return records
+
+
+def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path) -> dict:
+    """``spec.episodes`` episodes of ``task`` from seed ``EVAL_SEED`` on (episode i starts from seed
+    ``EVAL_SEED + i``, as ``lerobot-eval`` seeds them), in blocks: a finished shorter evaluation
+    (``eval/<task>/``) is kept and continued in ``eval/<task>_from_seed<S>/``."""
+    from lerobot_subgoalvla.demo_report import episode_successes
+
+    successes: list[bool] = []
+    seconds = 0.0
+    while len(successes) < spec.episodes:
+        first_seed = EVAL_SEED + len(successes)
+        name = f"{task}_from_seed{first_seed}" if successes else task
+        eval_dir = out / "eval" / name
+        if not (eval_dir / "eval_info.json").is_file():
+            run(
+                [
+                    "lerobot-eval",
+                    f"--policy.path={checkpoint}",
+                    "--env.type=calvin",
+                    f"--env.task={task}",
+                    f"--env.static_image_size={spec.data.static_size}",
+                    f"--env.gripper_image_size={spec.data.gripper_size}",
+                    f"--eval.n_episodes={spec.episodes - len(successes)}",
+                    f"--eval.batch_size={spec.eval_batch_size}",
+                    f"--eval.use_async_envs={str(spec.eval_batch_size > 1).lower()}",
+                    f"--output_dir={eval_dir}",
+                    f"--seed={first_seed}",
+                ],
+                out / f"eval_{name}.log",
+            )
+        info = json.loads((eval_dir / "eval_info.json").read_text())
+        block = episode_successes(info)
+        if not block:
+            raise RuntimeError(f"{eval_dir}/eval_info.json holds no episodes: delete {eval_dir} to rerun it")
+        successes += block
+        seconds += info["overall"]["eval_s"]
+    return {
+        "episodes": len(successes),
+        "successes": sum(successes),
+        "eval_seconds_per_episode": round(seconds / len(successes), 2),
+        "eval_seconds": round(seconds, 1),
     }
 
 

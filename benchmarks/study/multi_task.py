@@ -31,10 +31,10 @@ from common import (
     DataSpec,
     Method,
     RunSpec,
-    append_records,
     execute,
     load_records,
     records_from_demo,
+    store_records,
 )
 
 LAPTOP = ("--policy.type=subgoalvla", "--policy.preset=laptop")
@@ -130,7 +130,7 @@ def main() -> None:
             print(f"{args.import_demo} is already recorded")
             return
         records = records_from_demo(args.import_demo, method, seed, batch_size=32)
-        append_records(records)
+        store_records(records)
         for r in records:
             print(f"{method} {r['setting']:<11} {r['task']:<20} {r['successes']}/{r['episodes']}")
         return
