@@ -211,15 +211,15 @@ def _checkpoint(out: Path) -> Path:
     return out / "train" / "checkpoints" / "last" / "pretrained_model"
 
 
-def execute(spec: RunSpec, work: Path) -> list[dict]:
+def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> list[dict]:
     """Train (or reuse the checkpoint), evaluate every task, store and return the records.
 
     A run recorded with fewer episodes than ``spec.episodes`` continues its evaluation from the next seed with
     the same checkpoint, also for a run imported from a demo folder (``--import-demo``) that still exists.
     """
-    previous = _previous(spec, load_records())
+    previous = _previous(spec, load_records(results_path))
     if _done(spec, previous):
-        logger.info("%s: already in %s, skipped", spec.run_name, RESULTS_PATH)
+        logger.info("%s: already in %s, skipped", spec.run_name, results_path)
         return []
     source = next((Path(r["source"]) for r in previous.values() if r.get("source")), None)
     if source is not None and _checkpoint(source).is_dir():
@@ -228,7 +228,7 @@ def execute(spec: RunSpec, work: Path) -> list[dict]:
             {**previous[task], **_evaluate(spec, task, _checkpoint(source), source)}
             for task in spec.eval_tasks
         ]
-        store_records(records)
+        store_records(records, results_path)
         return records
     root = spec.dataset_root or spec.data.prepare(work)
     out = work / "runs" / spec.run_name
@@ -278,7 +278,7 @@ def execute(spec: RunSpec, work: Path) -> list[dict]:
         }
         for task in spec.eval_tasks
     ]
-    store_records(records)
+    store_records(records, results_path)
     return records
 
 
