@@ -32,6 +32,7 @@ width.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -92,6 +93,15 @@ class DiTBlock(nn.Module):
             nn.Linear(mlp_dim, hidden_dim),
         )
         self.adaLN_modulation = nn.Sequential(nn.SiLU(), nn.Linear(hidden_dim, 6 * hidden_dim))  # noqa: N815
+
+    def _load_from_state_dict(self, state_dict: dict[str, Tensor], prefix: str, *args: Any) -> None:
+        # Checkpoints saved before the MLP lost its dropout layer (always p = 0: the same function) keep
+        # the output projection at index 3; without the rename it would load as missing and stay random.
+        for name in ("weight", "bias"):
+            old, new = f"{prefix}mlp.3.{name}", f"{prefix}mlp.2.{name}"
+            if old in state_dict and new not in state_dict:
+                state_dict[new] = state_dict.pop(old)
+        super()._load_from_state_dict(state_dict, prefix, *args)
 
     def forward(self, x: Tensor, c: Tensor, key_padding_mask: Tensor | None) -> Tensor:
         """Args: x (B, Tc+T, D); c (B, D); key_padding_mask (B, Tc+T) True = ignore. Returns (B, Tc+T, D)."""

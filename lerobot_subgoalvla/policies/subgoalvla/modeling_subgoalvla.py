@@ -269,15 +269,46 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
 
     # Hub ----------------------------------------------------------------------------------------------------
     @classmethod
-    def from_pretrained(cls, pretrained_name_or_path: str | Path, **kwargs: Any) -> SubgoalVLAPolicy:
-        """LeRobot's ``from_pretrained``; a non-directory (a Hub id) fails fast and clearly when offline."""
+    def from_pretrained(
+        cls, pretrained_name_or_path: str | Path, *, strict: bool = True, **kwargs: Any
+    ) -> SubgoalVLAPolicy:
+        """LeRobot's ``from_pretrained``, strict by default; a Hub id fails fast and clearly when offline.
+
+        LeRobot loads with ``strict=False`` and only logs the weights a checkpoint lacks, which then keep
+        their random initialisation: a policy that acts differently with every ``--seed``. A checkpoint that
+        does not match this model raises instead; ``strict=False`` restores LeRobot's behaviour.
+
+        Raises:
+            ValueError: If ``strict`` and the checkpoint's weights do not match the model of its config.
+        """
         if not Path(pretrained_name_or_path).is_dir():
             _require_online(
                 f"loading {str(pretrained_name_or_path)!r} (not a local directory)",
                 "pass a local checkpoint directory such as "
                 "outputs/train/<run>/checkpoints/last/pretrained_model",
             )
-        return super().from_pretrained(pretrained_name_or_path, **kwargs)
+        try:
+            return super().from_pretrained(pretrained_name_or_path, strict=strict, **kwargs)
+        except RuntimeError as err:
+            if "Error(s) in loading state_dict" not in str(err):
+                raise
+            detail = " ".join(str(err).split())
+            raise ValueError(
+                f"{pretrained_name_or_path}: the checkpoint's weights do not match this SubgoalVLA "
+                f"({detail[:300]}...); load it with the lerobot-subgoalvla version that saved it, or pass "
+                "strict=False to keep the unmatched weights random"
+            ) from err
+
+    def _load_from_state_dict(self, state_dict: dict[str, Tensor], prefix: str, *args: Any) -> None:
+        key = f"{prefix}training_seed"
+        if key not in state_dict:  # checkpoints saved before the buffer existed
+            logger.warning(
+                "the checkpoint has no training_seed (saved before it existed): training on from it draws "
+                "its randomness from a new seed, %d",
+                int(self.training_seed),
+            )
+            state_dict[key] = self.training_seed.clone()
+        super()._load_from_state_dict(state_dict, prefix, *args)
 
     def save_pretrained(
         self,
