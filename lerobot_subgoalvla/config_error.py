@@ -8,10 +8,10 @@ draccus's own ``DecodingError`` passes through untouched, and LeRobot prints it 
 with exit code 1. So config validation raises this subclass of it, whose text is just the message (naming the
 flag and the allowed values).
 
-``DatasetContractError``: data (a training dataset's features, an env's observations) that does not fit the
-policy. LeRobot finds it after parsing, in ``make_policy``, and lets it end the process with a traceback; the
-plugin installs a ``sys.excepthook`` (:func:`install_one_line_excepthook`) that prints this error type as one
-``error: ...`` line and exits 1, and leaves every other exception to the previous hook.
+``DatasetContractError``: data (a training dataset's features, an env's observations, a checkpoint's weights)
+that does not fit the policy. LeRobot finds it after parsing, in ``make_policy``, and lets it end the process
+with a traceback; the plugin installs a ``sys.excepthook`` (:func:`install_one_line_excepthook`) that prints
+this error type as one ``error: ...`` line and exits 1, and leaves every other exception to the previous hook.
 """
 
 from __future__ import annotations

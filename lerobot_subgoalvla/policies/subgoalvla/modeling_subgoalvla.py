@@ -279,7 +279,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         does not match this model raises instead; ``strict=False`` restores LeRobot's behaviour.
 
         Raises:
-            ValueError: If ``strict`` and the checkpoint's weights do not match the model of its config.
+            DatasetContractError: If ``strict`` and the checkpoint's weights do not match the model of its
+                config (a ``ValueError``; LeRobot's CLIs print it as one line).
         """
         if not Path(pretrained_name_or_path).is_dir():
             _require_online(
@@ -293,9 +294,10 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
             if "Error(s) in loading state_dict" not in str(err):
                 raise
             detail = " ".join(str(err).split())
-            raise ValueError(
+            detail = detail if len(detail) <= 300 else detail[:300] + " ..."
+            raise DatasetContractError(
                 f"{pretrained_name_or_path}: the checkpoint's weights do not match this SubgoalVLA "
-                f"({detail[:300]}...); load it with the lerobot-subgoalvla version that saved it, or pass "
+                f"({detail}); load it with the lerobot-subgoalvla version that saved it, or pass "
                 "strict=False to keep the unmatched weights random"
             ) from err
 
