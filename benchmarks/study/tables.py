@@ -10,6 +10,10 @@ Usage::
 
     python benchmarks/study/tables.py                      # every setting
     python benchmarks/study/tables.py --setting multi_task --markdown
+    python benchmarks/study/tables.py --compare subgoalvla:0 subgoalvla:1 subgoalvla_mean_pool:0 --markdown
+
+``--compare`` prints one column per run (``METHOD:SEED``, optionally ``METHOD:SEED:SAMPLES`` where a method
+has runs of several budgets; default 80000 samples) and one row per task, with a pooled mean row.
 """
 
 from __future__ import annotations
@@ -108,12 +112,55 @@ def print_table(records: list[dict], setting: str, markdown: bool) -> None:
         )
 
 
+def _run_records(records: list[dict], run: str) -> list[dict]:
+    method, seed, *samples = run.split(":")
+    budget = int(samples[0]) if samples else 80000
+    wanted = (method, "multi_task", int(seed), budget)
+    rows = [r for r in records if (r["method"], r["setting"], r["seed"], r["train_samples"]) == wanted]
+    if not rows:
+        raise SystemExit(f"--compare {run}: no multi_task records of {method}, seed {seed}, {budget} samples")
+    return rows
+
+
+def print_comparison(records: list[dict], runs: list[str], markdown: bool) -> None:
+    """Task rows x run columns: ``successes/episodes`` per task, then the pooled mean success."""
+    columns = {run: {r["task"]: r for r in _run_records(records, run)} for run in runs}
+    lines = [["task", *runs]]
+    for task in FIXTURE_TASKS:
+        cells = [columns[run].get(task) for run in runs]
+        lines.append([task, *("" if c is None else f"{c['successes']}/{c['episodes']}" for c in cells)])
+    means = []
+    for run in runs:
+        done, total = (sum(r[key] for r in columns[run].values()) for key in ("successes", "episodes"))
+        means.append(f"{done}/{total} = {100 * done / total:.1f} %")
+    lines.append(["mean", *means])
+    if markdown:
+        lines = [[f"**{cell}**" if line[0] == "mean" else cell for cell in line] for line in lines]
+        print("| " + " | ".join(lines[0]) + " |")
+        print("|" + " --- |" * len(lines[0]))
+        for line in lines[1:]:
+            print("| " + " | ".join(line) + " |")
+        return
+    widths = [max(len(line[i]) for line in lines) for i in range(len(lines[0]))]
+    for line in lines:
+        print("  ".join(cell.ljust(w) for cell, w in zip(line, widths, strict=True)))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--setting", choices=["single_task", "multi_task", "lh_mtlc"], default=None)
     parser.add_argument("--markdown", action="store_true", help="print Markdown tables")
+    parser.add_argument(
+        "--compare",
+        nargs="+",
+        metavar="METHOD:SEED[:SAMPLES]",
+        help="one column per multi-task run, one row per task (e.g. subgoalvla:0 subgoalvla_mean_pool:0)",
+    )
     args = parser.parse_args()
     records = load_records()
+    if args.compare:
+        print_comparison(records, args.compare, args.markdown)
+        return
     for setting in [args.setting] if args.setting else ["single_task", "multi_task", "lh_mtlc"]:
         print_table(records, setting, args.markdown)
 
