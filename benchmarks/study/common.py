@@ -16,6 +16,7 @@ and simulator together), ``machine`` and the exact ``train_command``.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
 import os
@@ -172,8 +173,6 @@ def record_key(record: dict) -> tuple:
 def store_records(records: list[dict], path: Path = RESULTS_PATH) -> None:
     """Add ``records`` to the results file, replacing those with the same :func:`record_key` (an evaluation
     continued to more episodes); written to a temporary file, then renamed."""
-    import fcntl
-
     replaced = {record_key(r) for r in records}
     # Two study commands may store at once: the lock keeps one from dropping the other's records.
     with path.with_suffix(".lock").open("w") as lock:
@@ -187,13 +186,8 @@ def store_records(records: list[dict], path: Path = RESULTS_PATH) -> None:
 def _previous(spec: RunSpec, records: list[dict]) -> dict[str, dict]:
     """Task -> the record this run already has in ``records``."""
     samples = spec.steps * spec.method.batch_size
-    return {
-        r["task"]: r
-        for r in records
-        if record_key(r)[:2] == (spec.method.name, spec.setting)
-        and (r["seed"], r["train_samples"]) == (spec.seed, samples)
-        and r["task"] in spec.eval_tasks
-    }
+    wanted = {(spec.method.name, spec.setting, task, spec.seed, samples) for task in spec.eval_tasks}
+    return {r["task"]: r for r in records if record_key(r) in wanted}
 
 
 def _done(spec: RunSpec, previous: dict[str, dict]) -> bool:

@@ -96,13 +96,18 @@ def print_table(records: list[dict], setting: str, markdown: bool) -> None:
                       _fmt(minutes, ".1f"), _fmt(s["samples_per_s"], ".0f"),
                       _fmt(s["eval_s_per_episode"], ".1f")])  # fmt: skip
     print(f"\n{setting}  (tasks: {', '.join(f'{SHORT.get(t, t)}={t}' for t in tasks)})")
+    _print_lines(lines, markdown)
+
+
+def _print_lines(lines: list[list[str]], markdown: bool) -> None:
+    """A header line and rows, as a Markdown table or as aligned text (first column left, the rest right)."""
     if markdown:
         print("| " + " | ".join(lines[0]) + " |")
         print("|" + " --- |" * len(lines[0]))
         for line in lines[1:]:
             print("| " + " | ".join(line) + " |")
         return
-    widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
+    widths = [max(len(line[i]) for line in lines) for i in range(len(lines[0]))]
     for line in lines:
         print(
             "  ".join(
@@ -133,17 +138,8 @@ def print_comparison(records: list[dict], runs: list[str], markdown: bool) -> No
     for run in runs:
         done, total = (sum(r[key] for r in columns[run].values()) for key in ("successes", "episodes"))
         means.append(f"{done}/{total} = {100 * done / total:.1f} %")
-    lines.append(["mean", *means])
-    if markdown:
-        lines = [[f"**{cell}**" if line[0] == "mean" else cell for cell in line] for line in lines]
-        print("| " + " | ".join(lines[0]) + " |")
-        print("|" + " --- |" * len(lines[0]))
-        for line in lines[1:]:
-            print("| " + " | ".join(line) + " |")
-        return
-    widths = [max(len(line[i]) for line in lines) for i in range(len(lines[0]))]
-    for line in lines:
-        print("  ".join(cell.ljust(w) for cell, w in zip(line, widths, strict=True)))
+    lines.append([f"**{cell}**" for cell in ("mean", *means)] if markdown else ["mean", *means])
+    _print_lines(lines, markdown)
 
 
 def main() -> None:
