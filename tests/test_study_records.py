@@ -71,3 +71,43 @@ def test_a_shorter_evaluation_continues_from_the_next_seed(common, tmp_path, mon
     assert common.load_records(results) == [record]
     assert common.execute(spec, tmp_path / "work", results) == []  # done: nothing is evaluated again
     assert len(commands) == 1
+
+
+def _write_chains(results: Path, chain_ids: range, completed: int) -> None:
+    results.parent.mkdir(parents=True, exist_ok=True)
+    with results.open("a") as f:
+        for chain_id in chain_ids:
+            line = {"chain_id": chain_id, "tasks": ["open_drawer"] * 5, "num_completed": completed}
+            f.write(json.dumps(line) + "\n")
+
+
+def test_a_shorter_chain_evaluation_is_continued_to_the_asked_chains(common, tmp_path, monkeypatch) -> None:
+    demo = tmp_path / "demo"  # a demo with its checkpoint, one task's 20 episodes and 2 of its chains
+    (demo / "train" / "checkpoints" / "last" / "pretrained_model").mkdir(parents=True)
+    _write_eval(demo / "eval" / "open_drawer", [True] * 20)
+    _write_chains(demo / "eval" / "lh_mtlc" / "results.jsonl", range(2), completed=0)
+    results = tmp_path / "results.json"
+    task_record = _record("open_drawer", 20, 20, source=str(demo), train_seconds=60.0)
+    chain_record = {**task_record, "setting": "lh_mtlc", "task": "lh_mtlc", "episodes": 2, "successes": 0}
+    common.store_records([task_record, {**chain_record, "avg_len": 0.0}], results)
+    commands = []
+
+    def fake_run(command, log_path):  # chains 2 and 3, both with every subtask done
+        commands.append(command)
+        flags = dict(arg[2:].split("=", 1) for arg in command[1:])
+        _write_chains(Path(flags["env.results_path"]), range(2, int(flags["env.chain_stop"])), completed=5)
+        return 1.0
+
+    monkeypatch.setattr(common, "run", fake_run)
+    method = common.Method("subgoalvla", ("--policy.type=subgoalvla",))
+    data = common.DataSpec("fixtures", ("open_drawer",), 240)
+    spec = common.RunSpec(method, "multi_task", data, ("open_drawer",), 0, 2500, 20, chains=4)
+    records = {r["task"]: r for r in common.execute(spec, tmp_path / "work", results)}
+    assert len(commands) == 1 and "--env.chain_stop=4" in commands[0] and "--env.resume=true" in commands[0]
+    chains = records["lh_mtlc"]
+    assert (chains["setting"], chains["episodes"], chains["successes"]) == ("lh_mtlc", 4, 2)
+    assert chains["avg_len"] == 2.5
+    assert chains["chain_sr"]["1"] == 0.5 and chains["train_seconds"] == 60.0
+    # The finished task evaluation is read, not rerun (the one command was the chains').
+    assert (records["open_drawer"]["successes"], records["open_drawer"]["episodes"]) == (20, 20)
+    assert common.execute(spec, tmp_path / "work", results) == [] and len(commands) == 1

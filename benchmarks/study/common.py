@@ -42,6 +42,8 @@ FIXTURE_TASKS = (
     "turn_on_lightbulb",
     "turn_off_lightbulb",
 )
+#: The setting and task name of a record of CALVIN's long-horizon benchmark (chains of five subtasks).
+LH_MTLC = "lh_mtlc"
 #: Evaluation seeds start here; the generator's data seeds are small integers, so the start states differ.
 EVAL_SEED = 1000
 SCENE = "procedural"
@@ -155,6 +157,8 @@ class RunSpec:
     dataset_root: Path | None = None
     #: Episodes stepped together by ``lerobot-eval`` (more than one runs them in async env workers).
     eval_batch_size: int = 1
+    #: LH-MTLC chains evaluated after the tasks (CALVIN's chains 0 .. chains - 1); 0: none.
+    chains: int = 0
 
     @property
     def run_name(self) -> str:
@@ -187,11 +191,29 @@ def _previous(spec: RunSpec, records: list[dict]) -> dict[str, dict]:
     """Task -> the record this run already has in ``records``."""
     samples = spec.steps * spec.method.batch_size
     wanted = {(spec.method.name, spec.setting, task, spec.seed, samples) for task in spec.eval_tasks}
+    if spec.chains:
+        wanted.add((spec.method.name, LH_MTLC, LH_MTLC, spec.seed, samples))
     return {r["task"]: r for r in records if record_key(r) in wanted}
 
 
+def _wanted_episodes(spec: RunSpec) -> dict[str, int]:
+    """Task -> the episodes (chains for ``lh_mtlc``) this run's records must hold."""
+    return dict.fromkeys(spec.eval_tasks, spec.episodes) | ({LH_MTLC: spec.chains} if spec.chains else {})
+
+
 def _done(spec: RunSpec, previous: dict[str, dict]) -> bool:
-    return all(task in previous and previous[task]["episodes"] >= spec.episodes for task in spec.eval_tasks)
+    return all(
+        task in previous and previous[task]["episodes"] >= episodes
+        for task, episodes in _wanted_episodes(spec).items()
+    )
+
+
+def _evaluations(spec: RunSpec, checkpoint: Path, out: Path, previous: dict[str, dict]) -> dict[str, dict]:
+    """Task -> its evaluation fields: every task of ``spec``, then its LH-MTLC chains (if any)."""
+    results = {task: _evaluate(spec, task, checkpoint, out) for task in spec.eval_tasks}
+    if spec.chains:
+        results[LH_MTLC] = _evaluate_chains(spec, checkpoint, out, previous.get(LH_MTLC))
+    return results
 
 
 def _last_train_metrics(log_path: Path) -> dict[str, float]:
@@ -218,9 +240,10 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
     source = next((Path(r["source"]) for r in previous.values() if r.get("source")), None)
     if source is not None and _checkpoint(source).is_dir():
         logger.info("%s: continuing the evaluation of %s", spec.run_name, source)
+        training = {k: v for k, v in next(iter(previous.values())).items() if k not in _EVALUATION_KEYS}
         records = [
-            {**previous[task], **_evaluate(spec, task, _checkpoint(source), source)}
-            for task in spec.eval_tasks
+            {**training, **previous.get(task, {}), "setting": _setting(spec, task), "task": task, **fields}
+            for task, fields in _evaluations(spec, _checkpoint(source), source, previous).items()
         ]
         store_records(records, results_path)
         return records
@@ -264,16 +287,27 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
     records = [
         {
             "method": spec.method.name,
-            "setting": spec.setting,
+            "setting": _setting(spec, task),
             "task": task,
             "seed": spec.seed,
-            **_evaluate(spec, task, _checkpoint(out), out),
+            **fields,
             **training,
         }
-        for task in spec.eval_tasks
+        for task, fields in _evaluations(spec, _checkpoint(out), out, previous).items()
     ]
     store_records(records, results_path)
     return records
+
+
+#: A record's keys that belong to its evaluation, not to its training run.
+_EVALUATION_KEYS = frozenset(
+    ("setting", "task", "episodes", "successes", "avg_len", "chain_sr")
+    + ("eval_seconds", "eval_seconds_per_episode")
+)
+
+
+def _setting(spec: RunSpec, task: str) -> str:
+    return LH_MTLC if task == LH_MTLC else spec.setting
 
 
 def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path) -> dict:
@@ -319,56 +353,53 @@ def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path) -> dict:
     }
 
 
-def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -> list[dict]:
-    """Records of a finished ``scripts/demo.sh`` run (its ``train.log``, ``eval/<task>/`` and
-    ``eval/lh_mtlc/``).
-
-    The demo is the multi-task SubgoalVLA run of this study; importing it avoids training the same run twice.
-    """
-    from lerobot_subgoalvla.demo_report import parse_train_log, read_task_results, train_wall_seconds
+def chain_record_fields(results: Path) -> dict:
+    """A chain results file (``--env.results_path``) as record fields: ``episodes`` (chains), ``successes``
+    (chains with all five subtasks done), ``avg_len`` and ``chain_sr`` (LH-1..5)."""
     from lerobot_subgoalvla.envs.calvin.evaluation.report import summarize
     from lerobot_subgoalvla.envs.calvin.evaluation.results import read_episode_results
 
-    log = parse_train_log(demo_dir / "train.log")
-    if not log:
-        raise ValueError(f"{demo_dir / 'train.log'} has no lerobot-train step lines")
-    steps = int(log[-1]["step"])
-    seconds = train_wall_seconds(demo_dir / "train.log")
-    info_path = demo_dir / "dataset" / "meta" / "info.json"
-    info = json.loads(info_path.read_text()) if info_path.is_file() else {}
-    common = {
-        "method": method,
-        "seed": seed,
-        "train_samples": steps * batch_size,
-        "train_episodes": info.get("total_episodes"),
-        "train_frames": info.get("total_frames"),
-        "train_seconds": None if seconds is None else round(seconds, 1),
-        "samples_per_s": log[-1].get("smp/s"),
-        "scene": SCENE,
-        "machine": machine(),
-        "source": str(demo_dir),
+    report = summarize(read_episode_results(results))
+    return {
+        "episodes": report.num_chains,
+        "successes": round(report.chain_sr[5] * report.num_chains),
+        "avg_len": round(report.avg_seq_len, 3),
+        "chain_sr": {str(k): round(v, 4) for k, v in report.chain_sr.items()},
     }
-    records = [
-        {
-            **common,
-            "setting": "multi_task",
-            "task": task,
-            "episodes": r["episodes"],
-            "successes": r["successes"],
-        }
-        for task, r in read_task_results(demo_dir / "eval").items()
-    ]
-    chains = demo_dir / "eval" / "lh_mtlc" / "results.jsonl"
-    if chains.is_file():
-        report = summarize(read_episode_results(chains))
-        records.append(
-            {
-                **common,
-                "setting": "lh_mtlc",
-                "task": "lh_mtlc",
-                "episodes": report.num_chains,
-                "successes": round(report.chain_sr[5] * report.num_chains),
-                "avg_len": report.avg_seq_len,
-            }
+
+
+def _evaluate_chains(spec: RunSpec, checkpoint: Path, out: Path, previous: dict | None) -> dict:
+    """CALVIN's chains ``0 .. spec.chains - 1``, one after the other, appended to
+    ``eval/lh_mtlc/results.jsonl`` (the demo's layout); a file with fewer chains is continued
+    (``--env.resume``: the chains it holds are skipped), so 20 chains of a demo grow to 100 with the same
+    checkpoint."""
+    from lerobot_subgoalvla.envs.calvin.evaluation.results import read_episode_results
+
+    results = out / "eval" / LH_MTLC / "results.jsonl"
+    have = len(read_episode_results(results)) if results.is_file() else 0
+    # The earlier chains' time is unknown for an imported demo (it records none): then so is the total.
+    seconds = (previous or {}).get("eval_seconds") if have else 0.0
+    if have < spec.chains:
+        name = f"{LH_MTLC}_chains{have}-{spec.chains}"
+        elapsed = run(
+            [
+                "lerobot-eval",
+                f"--policy.path={checkpoint}",
+                "--env.type=calvin",
+                f"--env.task={LH_MTLC}",
+                f"--env.chain_stop={spec.chains}",
+                f"--env.results_path={results}",
+                f"--env.resume={str(have > 0).lower()}",
+                f"--env.static_image_size={spec.data.static_size}",
+                f"--env.gripper_image_size={spec.data.gripper_size}",
+                "--eval.n_episodes=1",
+                "--eval.batch_size=1",
+                "--eval.use_async_envs=false",
+                f"--output_dir={out / 'eval' / name}",
+                "--seed=0",
+            ],
+            out / f"eval_{name}.log",
         )
-    return records
+        seconds = None if seconds is None else seconds + elapsed
+    fields = chain_record_fields(results)
+    return {**fields, "eval_seconds": None if seconds is None else round(seconds, 1)}

@@ -33,9 +33,9 @@ from common import (
     RunSpec,
     execute,
     load_records,
-    records_from_demo,
     store_records,
 )
+from demo_import import records_from_demo
 
 LAPTOP = ("--policy.type=subgoalvla", "--policy.preset=laptop")
 METHODS = {
@@ -97,6 +97,12 @@ def main() -> None:
         "--demos", type=int, default=320, help="expert task attempts in the multi-task dataset"
     )
     parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument(
+        "--chains",
+        type=int,
+        default=0,
+        help="also evaluate CALVIN's LH-MTLC chains 0 .. N-1 (a shorter chain evaluation is continued)",
+    )
     parser.add_argument("--work-dir", type=Path, default=Path("outputs/study"))
     parser.add_argument(
         "--dataset",
@@ -157,14 +163,16 @@ def main() -> None:
                 extra,
                 dataset_root=None if name in ON_84_PX_DATA else args.dataset,
                 eval_batch_size=args.eval_batch_size,
+                chains=args.chains,
             )
             if args.dry_run:
                 print(spec.run_name, " ".join((*spec.method.policy_flags, *extra)))
                 continue
             for record in execute(spec, args.work_dir):
+                chains = f" avg len {record['avg_len']:.2f}" if "avg_len" in record else ""
                 print(
                     f"{record['method']:>26} {record['task']:<20} seed {seed}: "
-                    f"{record['successes']}/{record['episodes']}"
+                    f"{record['successes']}/{record['episodes']}{chains}"
                 )
 
 

@@ -1,0 +1,51 @@
+"""Records of a finished ``scripts/demo.sh`` run, so the study does not train the demo's run twice."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from common import LH_MTLC, SCENE, chain_record_fields, machine
+
+
+def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -> list[dict]:
+    """Records of a finished ``scripts/demo.sh`` run (its ``train.log``, ``eval/<task>/`` and
+    ``eval/lh_mtlc/``).
+
+    The demo is the multi-task SubgoalVLA run of this study; importing it avoids training the same run twice.
+    """
+    from lerobot_subgoalvla.demo_report import parse_train_log, read_task_results, train_wall_seconds
+
+    log = parse_train_log(demo_dir / "train.log")
+    if not log:
+        raise ValueError(f"{demo_dir / 'train.log'} has no lerobot-train step lines")
+    steps = int(log[-1]["step"])
+    seconds = train_wall_seconds(demo_dir / "train.log")
+    info_path = demo_dir / "dataset" / "meta" / "info.json"
+    info = json.loads(info_path.read_text()) if info_path.is_file() else {}
+    common = {
+        "method": method,
+        "seed": seed,
+        "train_samples": steps * batch_size,
+        "train_episodes": info.get("total_episodes"),
+        "train_frames": info.get("total_frames"),
+        "train_seconds": None if seconds is None else round(seconds, 1),
+        "samples_per_s": log[-1].get("smp/s"),
+        "scene": SCENE,
+        "machine": machine(),
+        "source": str(demo_dir),
+    }
+    records = [
+        {
+            **common,
+            "setting": "multi_task",
+            "task": task,
+            "episodes": r["episodes"],
+            "successes": r["successes"],
+        }
+        for task, r in read_task_results(demo_dir / "eval").items()
+    ]
+    chains = demo_dir / "eval" / LH_MTLC / "results.jsonl"
+    if chains.is_file():
+        records.append({**common, "setting": LH_MTLC, "task": LH_MTLC, **chain_record_fields(chains)})
+    return records
