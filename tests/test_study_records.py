@@ -17,7 +17,8 @@ def common(monkeypatch: pytest.MonkeyPatch):
     import common as study_common
 
     yield study_common
-    sys.modules.pop("common", None)
+    for module in ("common", "records"):
+        sys.modules.pop(module, None)
 
 
 def _record(task: str, successes: int, episodes: int, samples: int = 80000, **extra) -> dict:

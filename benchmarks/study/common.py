@@ -10,13 +10,13 @@ has continues its evaluation from the next seed. The results file is rewritten a
 
 Record keys (the issue's contract): ``method``, ``setting`` (single_task | multi_task | lh_mtlc), ``task``,
 ``seed``, ``episodes``, ``successes`` (+ ``avg_len`` for lh_mtlc), ``train_samples``, ``train_seconds``,
-``scene``; plus ``samples_per_s``, ``eval_seconds`` and ``eval_seconds_per_episode`` (wall time, policy
-and simulator together), ``machine`` and the exact ``train_command``.
+``scene``; plus ``samples_per_s``, ``train_episodes`` and ``train_frames``, ``eval_seconds`` and
+``eval_seconds_per_episode`` (wall time, policy and simulator together), ``chain_sr`` (LH-1..5, lh_mtlc),
+``machine`` and the exact ``train_command``. ``RunSpec.chains`` adds an lh_mtlc record per run.
 """
 
 from __future__ import annotations
 
-import fcntl
 import json
 import logging
 import os
@@ -28,10 +28,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from records import RESULTS_PATH, load_records, record_key, store_records
+
 logger = logging.getLogger("study")
 
-STUDY_DIR = Path(__file__).resolve().parent
-RESULTS_PATH = STUDY_DIR / "results.json"
 FIXTURE_TASKS = (
     "open_drawer",
     "close_drawer",
@@ -165,28 +165,6 @@ class RunSpec:
         return f"{self.setting}-{self.method.name}-{self.data.name}-s{self.seed}"
 
 
-def load_records(path: Path = RESULTS_PATH) -> list[dict]:
-    return json.loads(path.read_text()) if path.is_file() else []
-
-
-def record_key(record: dict) -> tuple:
-    """What identifies a record: (method, setting, task, seed, training samples)."""
-    return (record["method"], record["setting"], record["task"], record["seed"], record["train_samples"])
-
-
-def store_records(records: list[dict], path: Path = RESULTS_PATH) -> None:
-    """Add ``records`` to the results file, replacing those with the same :func:`record_key` (an evaluation
-    continued to more episodes); written to a temporary file, then renamed."""
-    replaced = {record_key(r) for r in records}
-    # Two study commands may store at once: the lock keeps one from dropping the other's records.
-    with path.with_suffix(".lock").open("w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        merged = [r for r in load_records(path) if record_key(r) not in replaced] + records
-        tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(merged, indent=1) + "\n")
-        tmp.replace(path)
-
-
 def _previous(spec: RunSpec, records: list[dict]) -> dict[str, dict]:
     """Task -> the record this run already has in ``records``."""
     samples = spec.steps * spec.method.batch_size
@@ -280,6 +258,7 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
         "train_samples": spec.steps * spec.method.batch_size,
         "train_seconds": round(float(timing.read_text()), 1),
         "samples_per_s": metrics.get("smp/s"),
+        **dataset_size(root),
         "scene": SCENE,
         "machine": machine(),
         "train_command": shlex.join(train_command),
@@ -304,6 +283,12 @@ _EVALUATION_KEYS = frozenset(
     ("setting", "task", "episodes", "successes", "avg_len", "chain_sr")
     + ("eval_seconds", "eval_seconds_per_episode")
 )
+
+
+def dataset_size(root: Path) -> dict[str, int]:
+    """``train_episodes`` and ``train_frames`` of a LeRobotDataset (they tell regenerated data apart)."""
+    info = json.loads((root / "meta" / "info.json").read_text())
+    return {"train_episodes": info["total_episodes"], "train_frames": info["total_frames"]}
 
 
 def _setting(spec: RunSpec, task: str) -> str:

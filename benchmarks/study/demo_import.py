@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from common import LH_MTLC, SCENE, chain_record_fields, machine
+from common import LH_MTLC, SCENE, chain_record_fields, dataset_size, machine
 
 
 def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -> list[dict]:
@@ -21,14 +20,14 @@ def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -
         raise ValueError(f"{demo_dir / 'train.log'} has no lerobot-train step lines")
     steps = int(log[-1]["step"])
     seconds = train_wall_seconds(demo_dir / "train.log")
-    info_path = demo_dir / "dataset" / "meta" / "info.json"
-    info = json.loads(info_path.read_text()) if info_path.is_file() else {}
+    dataset = demo_dir / "dataset"
+    size = dataset_size(dataset) if (dataset / "meta" / "info.json").is_file() else {}
     common = {
         "method": method,
         "seed": seed,
         "train_samples": steps * batch_size,
-        "train_episodes": info.get("total_episodes"),
-        "train_frames": info.get("total_frames"),
+        "train_episodes": size.get("train_episodes"),
+        "train_frames": size.get("train_frames"),
         "train_seconds": None if seconds is None else round(seconds, 1),
         "samples_per_s": log[-1].get("smp/s"),
         "scene": SCENE,

@@ -32,10 +32,9 @@ from common import (
     Method,
     RunSpec,
     execute,
-    load_records,
-    store_records,
 )
 from demo_import import records_from_demo
+from records import load_records, store_records
 
 LAPTOP = ("--policy.type=subgoalvla", "--policy.preset=laptop")
 METHODS = {

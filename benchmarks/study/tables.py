@@ -22,7 +22,8 @@ import argparse
 import statistics
 from collections import defaultdict
 
-from common import FIXTURE_TASKS, load_records
+from common import FIXTURE_TASKS
+from records import load_records
 
 COLUMNS = ("o_drawer", "c_drawer", "slider_l", "slider_r", "on_led", "off_led", "on_bulb", "off_bulb")
 SHORT = dict(zip(FIXTURE_TASKS, COLUMNS, strict=True))

@@ -1,0 +1,32 @@
+"""The study's results file, ``benchmarks/study/results.json``: a list of records, one per (method, setting,
+task, seed, training samples), rewritten atomically under a file lock."""
+
+from __future__ import annotations
+
+import fcntl
+import json
+from pathlib import Path
+
+RESULTS_PATH = Path(__file__).resolve().parent / "results.json"
+
+
+def load_records(path: Path = RESULTS_PATH) -> list[dict]:
+    return json.loads(path.read_text()) if path.is_file() else []
+
+
+def record_key(record: dict) -> tuple:
+    """What identifies a record: (method, setting, task, seed, training samples)."""
+    return (record["method"], record["setting"], record["task"], record["seed"], record["train_samples"])
+
+
+def store_records(records: list[dict], path: Path = RESULTS_PATH) -> None:
+    """Add ``records`` to the results file, replacing those with the same :func:`record_key` (an evaluation
+    continued to more episodes); written to a temporary file, then renamed."""
+    replaced = {record_key(r) for r in records}
+    # Two study commands may store at once: the lock keeps one from dropping the other's records.
+    with path.with_suffix(".lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        merged = [r for r in load_records(path) if record_key(r) not in replaced] + records
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(merged, indent=1) + "\n")
+        tmp.replace(path)
