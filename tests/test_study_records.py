@@ -112,3 +112,18 @@ def test_a_shorter_chain_evaluation_is_continued_to_the_asked_chains(common, tmp
     # The finished task evaluation is read, not rerun (the one command was the chains').
     assert (records["open_drawer"]["successes"], records["open_drawer"]["episodes"]) == (20, 20)
     assert common.execute(spec, tmp_path / "work", results) == [] and len(commands) == 1
+
+
+def test_records_on_another_generation_of_the_data_are_not_this_runs(common, tmp_path: Path) -> None:
+    root = tmp_path / "dataset"  # the same generator command, run again: other episodes, other frame count
+    (root / "meta").mkdir(parents=True)
+    (root / "meta" / "info.json").write_text(json.dumps({"total_episodes": 216, "total_frames": 16887}))
+    method = common.Method("subgoalvla", ("--policy.type=subgoalvla",))
+    data = common.DataSpec("fixtures", ("open_drawer",), 240)
+    spec = common.RunSpec(method, "multi_task", data, ("open_drawer",), 0, 2500, 20, dataset_root=root)
+    old, new = (_record("open_drawer", 15, 20, train_frames=frames) for frames in (16798, 16887))
+    assert common._previous(spec, [old], tmp_path) == {}
+    assert common._previous(spec, [old, new], tmp_path) == {"open_drawer": new}
+    common.store_records([old], tmp_path / "results.json")
+    common.store_records([new], tmp_path / "results.json")  # both kept: they are two runs
+    assert len(common.load_records(tmp_path / "results.json")) == 2

@@ -165,12 +165,15 @@ class RunSpec:
         return f"{self.setting}-{self.method.name}-{self.data.name}-s{self.seed}"
 
 
-def _previous(spec: RunSpec, records: list[dict]) -> dict[str, dict]:
-    """Task -> the record this run already has in ``records``."""
+def _previous(spec: RunSpec, records: list[dict], work: Path) -> dict[str, dict]:
+    """Task -> the record this run already has in ``records`` (on the same data, where it exists already)."""
     samples = spec.steps * spec.method.batch_size
-    wanted = {(spec.method.name, spec.setting, task, spec.seed, samples) for task in spec.eval_tasks}
-    if spec.chains:
-        wanted.add((spec.method.name, LH_MTLC, LH_MTLC, spec.seed, samples))
+    root = spec.dataset_root or work / "data" / spec.data.name
+    frames = dataset_size(root)["train_frames"] if (root / "meta" / "info.json").is_file() else None
+    settings = dict.fromkeys(spec.eval_tasks, spec.setting) | ({LH_MTLC: LH_MTLC} if spec.chains else {})
+    wanted = {
+        (spec.method.name, setting, task, spec.seed, samples, frames) for task, setting in settings.items()
+    }
     return {r["task"]: r for r in records if record_key(r) in wanted}
 
 
@@ -211,7 +214,7 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
     A run recorded with fewer episodes than ``spec.episodes`` continues its evaluation from the next seed with
     the same checkpoint, also for a run imported from a demo folder (``--import-demo``) that still exists.
     """
-    previous = _previous(spec, load_records(results_path))
+    previous = _previous(spec, load_records(results_path), work)
     if _done(spec, previous):
         logger.info("%s: already in %s, skipped", spec.run_name, results_path)
         return []

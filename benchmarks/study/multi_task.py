@@ -34,7 +34,7 @@ from common import (
     execute,
 )
 from demo_import import records_from_demo
-from records import load_records, store_records
+from records import load_records, record_key, store_records
 
 LAPTOP = ("--policy.type=subgoalvla", "--policy.preset=laptop")
 METHODS = {
@@ -128,13 +128,10 @@ def main() -> None:
     args = parser.parse_args()
     if args.import_demo is not None:
         seed, method = args.seeds[0], args.methods[0]
-        if any(
-            r["method"] == method and r["seed"] == seed and r.get("source") == str(args.import_demo)
-            for r in load_records()
-        ):
+        records = records_from_demo(args.import_demo, method, seed, batch_size=32)
+        if {record_key(r) for r in records} <= {record_key(r) for r in load_records()}:
             print(f"{args.import_demo} is already recorded")
             return
-        records = records_from_demo(args.import_demo, method, seed, batch_size=32)
         store_records(records)
         for r in records:
             print(f"{method} {r['setting']:<11} {r['task']:<20} {r['successes']}/{r['episodes']}")

@@ -1,5 +1,5 @@
 """The study's results file, ``benchmarks/study/results.json``: a list of records, one per (method, setting,
-task, seed, training samples), rewritten atomically under a file lock."""
+task, seed, training samples, training frames), rewritten atomically under a file lock."""
 
 from __future__ import annotations
 
@@ -15,8 +15,11 @@ def load_records(path: Path = RESULTS_PATH) -> list[dict]:
 
 
 def record_key(record: dict) -> tuple:
-    """What identifies a record: (method, setting, task, seed, training samples)."""
-    return (record["method"], record["setting"], record["task"], record["seed"], record["train_samples"])
+    """What identifies a record: (method, setting, task, seed, training samples, training frames). The frames
+    tell two generations of a dataset apart (the same command on another pybullet build or expert version
+    makes other episodes); None where a record does not name them."""
+    fields = ("method", "setting", "task", "seed", "train_samples")
+    return (*(record[name] for name in fields), record.get("train_frames"))
 
 
 def store_records(records: list[dict], path: Path = RESULTS_PATH) -> None:

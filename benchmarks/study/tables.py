@@ -1,10 +1,10 @@
 """Print the study's tables from ``benchmarks/study/results.json`` (no training, no simulator).
 
-One row per (method, setting, training samples): closed-loop success per task (successes over episodes,
-summed over the seeds), the mean success over the tasks with its spread over training seeds (mean +- half the
-range of the per-seed means; one seed: no spread), and the cost: training wall time, training samples/s and
-evaluation seconds per episode (medians over the seeds). For ``lh_mtlc`` the cell is the average chain length
-(tasks completed in a row, 0-5) over the seeds' chains.
+One row per (method, setting, training samples, training frames): closed-loop success per task (successes
+over episodes, summed over the seeds), the mean success over the tasks with its spread over training seeds
+(mean +- half the range of the per-seed means; one seed: no spread), and the cost: training wall time,
+training samples/s and evaluation seconds per episode (medians over the seeds). For ``lh_mtlc`` the cell is
+the average chain length (tasks completed in a row, 0-5) over the seeds' chains.
 
 Usage::
 
@@ -13,7 +13,8 @@ Usage::
     python benchmarks/study/tables.py --compare subgoalvla:0 subgoalvla:1 subgoalvla_mean_pool:0 --markdown
 
 ``--compare`` prints one column per run (``METHOD:SEED``, optionally ``METHOD:SEED:SAMPLES`` where a method
-has runs of several budgets; default 80000 samples) and one row per task, with a pooled mean row.
+has runs of several budgets, default 80000 samples, and ``METHOD:SEED:SAMPLES:FRAMES`` where it has runs on
+several generations of the data) and one row per task, with a pooled mean row.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ def _group(records: list[dict], setting: str) -> dict[tuple, list[dict]]:
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for record in records:
         if record["setting"] == setting:
-            key = (record["method"], record["train_samples"])
+            key = (record["method"], record["train_samples"], record.get("train_frames") or 0)
             groups[key].append(record)
     return groups
 
@@ -84,16 +85,16 @@ def print_table(records: list[dict], setting: str, markdown: bool) -> None:
     tasks = [t for t in FIXTURE_TASKS if any(r["task"] == t for rows in groups.values() for r in rows)]
     tasks += sorted({r["task"] for rows in groups.values() for r in rows} - set(tasks))
     score = "avg len" if setting == "lh_mtlc" else "mean %"
-    head = ["method", "samples", "seeds", *(SHORT.get(t, t) for t in tasks), score, "train min", "smp/s",
-            "eval s/ep"]  # fmt: skip
+    head = ["method", "samples", "frames", "seeds", *(SHORT.get(t, t) for t in tasks), score, "train min",
+            "smp/s", "eval s/ep"]  # fmt: skip
     lines = [head]
-    for (method, samples), rows in sorted(groups.items()):
+    for (method, samples, frames), rows in sorted(groups.items()):
         s = summarize(rows)
         cells = [_cell(s["per_task"].get(t), setting) for t in tasks]
         digits = ".2f" if setting == "lh_mtlc" else ".1f"
         mean = format(s["mean"], digits) + ("" if s["spread"] is None else f" +- {s['spread']:{digits}}")
         minutes = None if s["train_seconds"] is None else s["train_seconds"] / 60
-        lines.append([method, str(samples), ",".join(map(str, s["seeds"])), *cells, mean,
+        lines.append([method, str(samples), str(frames or "-"), ",".join(map(str, s["seeds"])), *cells, mean,
                       _fmt(minutes, ".1f"), _fmt(s["samples_per_s"], ".0f"),
                       _fmt(s["eval_s_per_episode"], ".1f")])  # fmt: skip
     print(f"\n{setting}  (tasks: {', '.join(f'{SHORT.get(t, t)}={t}' for t in tasks)})")
@@ -119,12 +120,19 @@ def _print_lines(lines: list[list[str]], markdown: bool) -> None:
 
 
 def _run_records(records: list[dict], run: str) -> list[dict]:
-    method, seed, *samples = run.split(":")
-    budget = int(samples[0]) if samples else 80000
+    method, seed, *rest = run.split(":")
+    budget = int(rest[0]) if rest else 80000
     wanted = (method, "multi_task", int(seed), budget)
     rows = [r for r in records if (r["method"], r["setting"], r["seed"], r["train_samples"]) == wanted]
+    if len(rest) > 1:
+        rows = [r for r in rows if r.get("train_frames") == int(rest[1])]
     if not rows:
         raise SystemExit(f"--compare {run}: no multi_task records of {method}, seed {seed}, {budget} samples")
+    frames = sorted({r.get("train_frames") or 0 for r in rows})
+    if len(frames) > 1:
+        raise SystemExit(
+            f"--compare {run}: runs on datasets of {frames} frames; name one: {method}:{seed}:{budget}:FRAMES"
+        )
     return rows
 
 
@@ -150,7 +158,7 @@ def main() -> None:
     parser.add_argument(
         "--compare",
         nargs="+",
-        metavar="METHOD:SEED[:SAMPLES]",
+        metavar="METHOD:SEED[:SAMPLES[:FRAMES]]",
         help="one column per multi-task run, one row per task (e.g. subgoalvla:0 subgoalvla_mean_pool:0)",
     )
     args = parser.parse_args()
