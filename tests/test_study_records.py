@@ -127,3 +127,34 @@ def test_records_on_another_generation_of_the_data_are_not_this_runs(common, tmp
     common.store_records([old], tmp_path / "results.json")
     common.store_records([new], tmp_path / "results.json")  # both kept: they are two runs
     assert len(common.load_records(tmp_path / "results.json")) == 2
+
+
+def test_a_regenerated_dataset_trains_its_own_checkpoint(common, tmp_path, monkeypatch) -> None:
+    commands = []
+
+    def fake_run(command, log_path):
+        commands.append(command)
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        log_path.touch()
+        flags = dict(arg[2:].split("=", 1) for arg in command[1:])
+        if command[0] == "lerobot-train":
+            (Path(flags["output_dir"]) / "checkpoints" / "last" / "pretrained_model").mkdir(parents=True)
+        else:
+            _write_eval(Path(flags["output_dir"]), [True] * int(flags["eval.n_episodes"]))
+        return 1.0
+
+    monkeypatch.setattr(common, "run", fake_run)
+    method = common.Method("subgoalvla", ("--policy.type=subgoalvla",))
+    data = common.DataSpec("fixtures", ("open_drawer",), 240)
+    results = tmp_path / "results.json"
+    for frames in (16798, 16887, 16798):  # the third: the first run again, already recorded
+        root = tmp_path / f"dataset{frames}"
+        (root / "meta").mkdir(parents=True, exist_ok=True)
+        (root / "meta" / "info.json").write_text(json.dumps({"total_episodes": 216, "total_frames": frames}))
+        spec = common.RunSpec(method, "multi_task", data, ("open_drawer",), 0, 2500, 2, dataset_root=root)
+        common.execute(spec, tmp_path / "work", results)
+    trained = [
+        next(a for a in c if a.startswith("--output_dir=")) for c in commands if c[0] == "lerobot-train"
+    ]
+    assert len(trained) == 2 and trained[0] != trained[1]
+    assert sorted(r["train_frames"] for r in common.load_records(results)) == [16798, 16887]

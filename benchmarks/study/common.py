@@ -229,7 +229,9 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
         store_records(records, results_path)
         return records
     root = spec.dataset_root or spec.data.prepare(work)
-    out = work / "runs" / spec.run_name
+    size = dataset_size(root)
+    # The frame count in the folder's name: a checkpoint is never reused for another generation of the data.
+    out = work / "runs" / f"{spec.run_name}-{size['train_frames']}f"
     train_log = out / "train.log"
     timing = out / "train_seconds.txt"
     train_command = [
@@ -261,7 +263,7 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
         "train_samples": spec.steps * spec.method.batch_size,
         "train_seconds": round(float(timing.read_text()), 1),
         "samples_per_s": metrics.get("smp/s"),
-        **dataset_size(root),
+        **size,
         "scene": SCENE,
         "machine": machine(),
         "train_command": shlex.join(train_command),
