@@ -87,6 +87,7 @@ def test_a_shorter_chain_evaluation_is_continued_to_the_asked_chains(common, tmp
     (demo / "train" / "checkpoints" / "last" / "pretrained_model").mkdir(parents=True)
     _write_eval(demo / "eval" / "open_drawer", [True] * 20)
     _write_chains(demo / "eval" / "lh_mtlc" / "results.jsonl", range(2), completed=0)
+    (demo / "eval" / "lh_mtlc" / "eval_info.json").write_text(json.dumps({"overall": {"eval_s": 10.0}}))
     results = tmp_path / "results.json"
     task_record = _record("open_drawer", 20, 20, source=str(demo), train_seconds=60.0)
     chain_record = {**task_record, "setting": "lh_mtlc", "task": "lh_mtlc", "episodes": 2, "successes": 0}
@@ -97,6 +98,8 @@ def test_a_shorter_chain_evaluation_is_continued_to_the_asked_chains(common, tmp
         commands.append(command)
         flags = dict(arg[2:].split("=", 1) for arg in command[1:])
         _write_chains(Path(flags["env.results_path"]), range(2, int(flags["env.chain_stop"])), completed=5)
+        (Path(flags["output_dir"]) / "eval_info.json").parent.mkdir(parents=True)
+        (Path(flags["output_dir"]) / "eval_info.json").write_text(json.dumps({"overall": {"eval_s": 30.0}}))
         return 1.0
 
     monkeypatch.setattr(common, "run", fake_run)
@@ -109,6 +112,7 @@ def test_a_shorter_chain_evaluation_is_continued_to_the_asked_chains(common, tmp
     assert (chains["setting"], chains["episodes"], chains["successes"]) == ("lh_mtlc", 4, 2)
     assert chains["avg_len"] == 2.5
     assert chains["chain_sr"]["1"] == 0.5 and chains["train_seconds"] == 60.0
+    assert (chains["eval_seconds"], chains["eval_seconds_per_episode"]) == (40.0, 10.0)  # the demo's + new
     # The finished task evaluation is read, not rerun (the one command was the chains').
     assert (records["open_drawer"]["successes"], records["open_drawer"]["episodes"]) == (20, 20)
     assert common.execute(spec, tmp_path / "work", results) == [] and len(commands) == 1

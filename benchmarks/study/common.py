@@ -28,7 +28,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from records import RESULTS_PATH, load_records, record_key, store_records
+from records import RESULTS_PATH, chain_record_fields, load_records, record_key, store_records
 
 logger = logging.getLogger("study")
 
@@ -189,11 +189,11 @@ def _done(spec: RunSpec, previous: dict[str, dict]) -> bool:
     )
 
 
-def _evaluations(spec: RunSpec, checkpoint: Path, out: Path, previous: dict[str, dict]) -> dict[str, dict]:
+def _evaluations(spec: RunSpec, checkpoint: Path, out: Path) -> dict[str, dict]:
     """Task -> its evaluation fields: every task of ``spec``, then its LH-MTLC chains (if any)."""
     results = {task: _evaluate(spec, task, checkpoint, out) for task in spec.eval_tasks}
     if spec.chains:
-        results[LH_MTLC] = _evaluate_chains(spec, checkpoint, out, previous.get(LH_MTLC))
+        results[LH_MTLC] = _evaluate_chains(spec, checkpoint, out)
     return results
 
 
@@ -224,7 +224,7 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
         training = {k: v for k, v in next(iter(previous.values())).items() if k not in _EVALUATION_KEYS}
         records = [
             {**training, **previous.get(task, {}), "setting": _setting(spec, task), "task": task, **fields}
-            for task, fields in _evaluations(spec, _checkpoint(source), source, previous).items()
+            for task, fields in _evaluations(spec, _checkpoint(source), source).items()
         ]
         store_records(records, results_path)
         return records
@@ -277,7 +277,7 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
             **fields,
             **training,
         }
-        for task, fields in _evaluations(spec, _checkpoint(out), out, previous).items()
+        for task, fields in _evaluations(spec, _checkpoint(out), out).items()
     ]
     store_records(records, results_path)
     return records
@@ -343,35 +343,18 @@ def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path) -> dict:
     }
 
 
-def chain_record_fields(results: Path) -> dict:
-    """A chain results file (``--env.results_path``) as record fields: ``episodes`` (chains), ``successes``
-    (chains with all five subtasks done), ``avg_len`` and ``chain_sr`` (LH-1..5)."""
-    from lerobot_subgoalvla.envs.calvin.evaluation.report import summarize
-    from lerobot_subgoalvla.envs.calvin.evaluation.results import read_episode_results
-
-    report = summarize(read_episode_results(results))
-    return {
-        "episodes": report.num_chains,
-        "successes": round(report.chain_sr[5] * report.num_chains),
-        "avg_len": round(report.avg_seq_len, 3),
-        "chain_sr": {str(k): round(v, 4) for k, v in report.chain_sr.items()},
-    }
-
-
-def _evaluate_chains(spec: RunSpec, checkpoint: Path, out: Path, previous: dict | None) -> dict:
+def _evaluate_chains(spec: RunSpec, checkpoint: Path, out: Path) -> dict:
     """CALVIN's chains ``0 .. spec.chains - 1``, one after the other, appended to
     ``eval/lh_mtlc/results.jsonl`` (the demo's layout); a file with fewer chains is continued
     (``--env.resume``: the chains it holds are skipped), so 20 chains of a demo grow to 100 with the same
-    checkpoint."""
+    checkpoint. The time is ``lerobot-eval``'s over the finished blocks (``eval/lh_mtlc*/eval_info.json``)."""
     from lerobot_subgoalvla.envs.calvin.evaluation.results import read_episode_results
 
     results = out / "eval" / LH_MTLC / "results.jsonl"
     have = len(read_episode_results(results)) if results.is_file() else 0
-    # The earlier chains' time is unknown for an imported demo (it records none): then so is the total.
-    seconds = (previous or {}).get("eval_seconds") if have else 0.0
     if have < spec.chains:
         name = f"{LH_MTLC}_chains{have}-{spec.chains}"
-        elapsed = run(
+        run(
             [
                 "lerobot-eval",
                 f"--policy.path={checkpoint}",
@@ -390,6 +373,14 @@ def _evaluate_chains(spec: RunSpec, checkpoint: Path, out: Path, previous: dict 
             ],
             out / f"eval_{name}.log",
         )
-        seconds = None if seconds is None else seconds + elapsed
     fields = chain_record_fields(results)
-    return {**fields, "eval_seconds": None if seconds is None else round(seconds, 1)}
+    infos = [
+        out / "eval" / LH_MTLC / "eval_info.json",
+        *(out / "eval").glob(f"{LH_MTLC}_chains*/eval_info.json"),
+    ]
+    seconds = sum(json.loads(info.read_text())["overall"]["eval_s"] for info in infos if info.is_file())
+    return {
+        **fields,
+        "eval_seconds": round(seconds, 1),
+        "eval_seconds_per_episode": round(seconds / fields["episodes"], 2),
+    }

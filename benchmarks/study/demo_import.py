@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from common import LH_MTLC, SCENE, chain_record_fields, dataset_size, machine
+from common import LH_MTLC, SCENE, dataset_size, machine
+from records import chain_record_fields
 
 
 def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -> list[dict]:

@@ -33,3 +33,18 @@ def store_records(records: list[dict], path: Path = RESULTS_PATH) -> None:
         tmp = path.with_suffix(".tmp")
         tmp.write_text(json.dumps(merged, indent=1) + "\n")
         tmp.replace(path)
+
+
+def chain_record_fields(results: Path) -> dict:
+    """A chain results file (``--env.results_path``) as record fields: ``episodes`` (chains), ``successes``
+    (chains with all five subtasks done), ``avg_len`` and ``chain_sr`` (LH-1..5)."""
+    from lerobot_subgoalvla.envs.calvin.evaluation.report import summarize
+    from lerobot_subgoalvla.envs.calvin.evaluation.results import read_episode_results
+
+    report = summarize(read_episode_results(results))
+    return {
+        "episodes": report.num_chains,
+        "successes": round(report.chain_sr[5] * report.num_chains),
+        "avg_len": round(report.avg_seq_len, 3),
+        "chain_sr": {str(k): round(v, 4) for k, v in report.chain_sr.items()},
+    }
