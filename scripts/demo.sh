@@ -1,16 +1,18 @@
 #!/usr/bin/env bash
 # The main job, end to end on a laptop-class CPU with no download (about 45 minutes on 2 cores):
-#   1. CALVIN-format play data of the 8 fixture tasks from our scripted expert in the procedural CALVIN scene
+#   1. CALVIN-format play data of the 8 fixture tasks (gpu profile: all 34 tasks) from our scripted expert in the
+#      procedural CALVIN scene
 #   2. conversion to a LeRobotDataset v3 with subgoal traces
 #   3. lerobot-train of the `laptop` SubgoalVLA preset: stage I, then stage II in the same run
 #   4. lerobot-eval of every fixture task (DEMO_EPISODES episodes each) and of DEMO_CHAINS LH-MTLC chains
 #   5. the report: success per task, LH-1..5, loss curves, predicted subgoal traces beside the executed motion
-# What to expect with the defaults: about half of the fixture-task episodes succeed (see docs/RESULTS.md for the
-# measured figures and their spread); chains contain block tasks the demo never trains, so the average length
-# stays below 1.
+# What to expect with the defaults: about four in five fixture-task episodes succeed (see docs/RESULTS.md for the
+# measured figures and their spread); chains contain block tasks the cpu profile never trains, so the average
+# length stays below 1.
 # Every stage resumes or is skipped when its output is already there, so an interrupted demo continues.
-# DEMO_PROFILE=gpu scales everything up for a GPU box (small preset, 10x data and steps, 100 chains); single
-# sizes can be changed with DEMO_TASKS, DEMO_STEPS, DEMO_EPISODES, DEMO_CHAINS, DEMO_WORKERS, DEMO_DIR.
+# DEMO_PROFILE=gpu scales everything up for a GPU box (small preset, 10x data and steps over all 34 tasks, 100
+# chains); single sizes can be changed with DEMO_TASKS, DEMO_STEPS, DEMO_EPISODES, DEMO_CHAINS, DEMO_WORKERS,
+# DEMO_DIR, and the trained tasks with DEMO_TRAIN_TASKS=fixtures|all.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup_venv.sh
@@ -22,8 +24,9 @@ FIXTURE_TASKS=(open_drawer close_drawer move_slider_left move_slider_right turn_
     turn_on_lightbulb turn_off_lightbulb)
 case "${DEMO_PROFILE:-cpu}" in
     # cpu: nothing is downloaded (random backbone); gpu: the small preset fetches its pretrained VLM once
-    cpu) PRESET=laptop; TASKS=240; STEPS=2500; BATCH=32; EPISODES=10; CHAINS=20; DEVICE=cpu; export HF_HUB_OFFLINE=1 ;;
-    gpu) PRESET=small; TASKS=2400; STEPS=30000; BATCH=32; EPISODES=20; CHAINS=100; DEVICE=cuda ;;
+    cpu) PRESET=laptop; TASKS=240; STEPS=2500; BATCH=32; EPISODES=10; CHAINS=20; DEVICE=cpu; TRAIN_TASKS=fixtures
+         export HF_HUB_OFFLINE=1 ;;
+    gpu) PRESET=small; TASKS=2400; STEPS=30000; BATCH=32; EPISODES=20; CHAINS=100; DEVICE=cuda; TRAIN_TASKS=all ;;
     *) echo "demo.sh: DEMO_PROFILE=${DEMO_PROFILE} is not valid; use cpu or gpu" >&2; exit 2 ;;
 esac
 OUT="${DEMO_DIR:-outputs/demo}"
@@ -32,14 +35,20 @@ STEPS="${DEMO_STEPS:-$STEPS}"          # training steps (stage II for the last f
 EPISODES="${DEMO_EPISODES:-$EPISODES}" # evaluation episodes per fixture task
 CHAINS="${DEMO_CHAINS:-$CHAINS}"       # LH-MTLC chains evaluated
 WORKERS="${DEMO_WORKERS:-2}"
+TRAIN_TASKS="${DEMO_TRAIN_TASKS:-$TRAIN_TASKS}" # fixtures: the 8 fixture tasks; all: CALVIN's 34 (blocks too)
+case "$TRAIN_TASKS" in
+    fixtures) TASK_FLAGS=(--tasks "$(IFS=,; echo "${FIXTURE_TASKS[*]}")") ;;
+    all) TASK_FLAGS=() ;;
+    *) echo "demo.sh: DEMO_TRAIN_TASKS=${TRAIN_TASKS} is not valid; use fixtures or all" >&2; exit 2 ;;
+esac
 mkdir -p "$OUT"
 started=$(date +%s)
 stage() { echo "== [$(( ($(date +%s) - started) / 60 )) min] $*"; }
 
-stage "1/5 generate CALVIN-format play data ($TASKS fixture-task attempts) -> $OUT/calvin_native"
+stage "1/5 generate CALVIN-format play data ($TASKS task attempts, $TRAIN_TASKS tasks) -> $OUT/calvin_native"
 if [ ! -d "$OUT/calvin_native/training" ] || [ ! -d "$OUT/calvin_native/validation" ]; then
     subgoalvla-generate-calvin --output "$OUT/calvin_native" --num-tasks "$TASKS" --seed 0 \
-        --tasks-per-segment 4 --workers "$WORKERS" --tasks "$(IFS=,; echo "${FIXTURE_TASKS[*]}")"
+        --tasks-per-segment 4 --workers "$WORKERS" "${TASK_FLAGS[@]}"
 fi
 
 stage "2/5 convert to a LeRobotDataset -> $OUT/dataset"
