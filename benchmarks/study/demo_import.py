@@ -23,7 +23,7 @@ def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -
     seconds = train_wall_seconds(demo_dir / "train.log")
     dataset = demo_dir / "dataset"
     size = dataset_size(dataset) if (dataset / "meta" / "info.json").is_file() else {}
-    common = {
+    training = {
         "method": method,
         "seed": seed,
         "train_samples": steps * batch_size,
@@ -37,7 +37,7 @@ def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -
     }
     records = [
         {
-            **common,
+            **training,
             "setting": "multi_task",
             "task": task,
             "episodes": r["episodes"],
@@ -47,5 +47,5 @@ def records_from_demo(demo_dir: Path, method: str, seed: int, batch_size: int) -
     ]
     chains = demo_dir / "eval" / LH_MTLC / "results.jsonl"
     if chains.is_file():
-        records.append({**common, "setting": LH_MTLC, "task": LH_MTLC, **chain_record_fields(chains)})
+        records.append({**training, "setting": LH_MTLC, "task": LH_MTLC, **chain_record_fields(chains)})
     return records
