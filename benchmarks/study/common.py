@@ -170,22 +170,25 @@ def _previous(spec: RunSpec, records: list[dict], work: Path) -> dict[str, dict]
     samples = spec.steps * spec.method.batch_size
     root = spec.dataset_root or work / "data" / spec.data.name
     frames = dataset_size(root)["train_frames"] if (root / "meta" / "info.json").is_file() else None
-    settings = dict.fromkeys(spec.eval_tasks, spec.setting) | ({LH_MTLC: LH_MTLC} if spec.chains else {})
     wanted = {
-        (spec.method.name, setting, task, spec.seed, samples, frames) for task, setting in settings.items()
+        (spec.method.name, setting, task, spec.seed, samples, frames)
+        for task, (setting, _) in _targets(spec).items()
     }
     return {r["task"]: r for r in records if record_key(r) in wanted}
 
 
-def _wanted_episodes(spec: RunSpec) -> dict[str, int]:
-    """Task -> the episodes (chains for ``lh_mtlc``) this run's records must hold."""
-    return dict.fromkeys(spec.eval_tasks, spec.episodes) | ({LH_MTLC: spec.chains} if spec.chains else {})
+def _targets(spec: RunSpec) -> dict[str, tuple[str, int]]:
+    """Task -> (setting, episodes) of the records this run must hold: every task, then its chains."""
+    targets = dict.fromkeys(spec.eval_tasks, (spec.setting, spec.episodes))
+    if spec.chains:
+        targets[LH_MTLC] = (LH_MTLC, spec.chains)
+    return targets
 
 
 def _done(spec: RunSpec, previous: dict[str, dict]) -> bool:
     return all(
         task in previous and previous[task]["episodes"] >= episodes
-        for task, episodes in _wanted_episodes(spec).items()
+        for task, (_, episodes) in _targets(spec).items()
     )
 
 
@@ -223,7 +226,7 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
         logger.info("%s: continuing the evaluation of %s", spec.run_name, source)
         training = {k: v for k, v in next(iter(previous.values())).items() if k not in _EVALUATION_KEYS}
         records = [
-            {**training, **previous.get(task, {}), "setting": _setting(spec, task), "task": task, **fields}
+            {**training, **previous.get(task, {}), "setting": _targets(spec)[task][0], "task": task, **fields}
             for task, fields in _evaluations(spec, _checkpoint(source), source).items()
         ]
         store_records(records, results_path)
@@ -271,7 +274,7 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
     records = [
         {
             "method": spec.method.name,
-            "setting": _setting(spec, task),
+            "setting": _targets(spec)[task][0],
             "task": task,
             "seed": spec.seed,
             **fields,
@@ -294,10 +297,6 @@ def dataset_size(root: Path) -> dict[str, int]:
     """``train_episodes`` and ``train_frames`` of a LeRobotDataset (they tell regenerated data apart)."""
     info = json.loads((root / "meta" / "info.json").read_text())
     return {"train_episodes": info["total_episodes"], "train_frames": info["total_frames"]}
-
-
-def _setting(spec: RunSpec, task: str) -> str:
-    return LH_MTLC if task == LH_MTLC else spec.setting
 
 
 def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path) -> dict:
