@@ -86,6 +86,8 @@ class DataSpec:
     static_size: int = 200
     gripper_size: int = 84
     seed: int = 0
+    #: A segment ends when none of ``tasks`` is feasible any more: a single task needs 1 (one attempt each).
+    tasks_per_segment: int = 4
 
     def prepare(self, work: Path, workers: int = 2) -> Path:
         """Generate and convert (each step skipped when done); returns the dataset root."""
@@ -101,7 +103,7 @@ class DataSpec:
                     "--seed",
                     str(self.seed),
                     "--tasks-per-segment",
-                    "4",
+                    str(self.tasks_per_segment),
                     "--workers",
                     str(workers),
                     "--tasks",

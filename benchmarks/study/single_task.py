@@ -32,7 +32,10 @@ METHODS = {
 
 def specs(tasks: list[str], methods: list[str], seeds: list[int], steps: int, demos: int, episodes: int):
     for task in tasks:
-        data = DataSpec(f"single_{task}", (task,), demos, static_size=84, gripper_size=84)
+        # one attempt per segment: with a single task, a segment ends once the task is done
+        data = DataSpec(
+            f"single_{task}", (task,), demos, static_size=84, gripper_size=84, tasks_per_segment=1
+        )
         for seed in seeds:
             for name in methods:
                 yield RunSpec(METHODS[name], "single_task", data, (task,), seed, steps, episodes)

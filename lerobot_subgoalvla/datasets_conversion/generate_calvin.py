@@ -209,6 +209,20 @@ def _assemble_split(output: Path, name: str, jobs: list[SegmentJob], opts: Gener
     )
 
 
+def _warn_if_fewer_attempts(jobs: list[SegmentJob], opts: GeneratorOptions) -> None:
+    """A segment ends early when none of ``opts.tasks`` is feasible any more (one task: after its first
+    attempt); say so rather than hand back fewer demonstrations than ``--num-tasks`` without a word."""
+    summaries = (json.loads((job.directory / "segment.json").read_text()) for job in jobs)
+    attempted = sum(len(summary["attempted"]) for summary in summaries)
+    if attempted < opts.num_tasks:
+        logger.warning(
+            "the expert attempted %d of the %d tasks asked for: a segment ends when none of --tasks is "
+            "feasible any more; pass --tasks-per-segment 1 for one attempt per segment (e.g. a single task)",
+            attempted,
+            opts.num_tasks,
+        )
+
+
 def _check_options(segments_dir: Path, opts: GeneratorOptions) -> None:
     path = segments_dir / "options.json"
     record = json.loads(json.dumps(asdict(opts)))  # tuples as JSON lists, as read back
@@ -261,6 +275,7 @@ def generate(output: Path, opts: GeneratorOptions, workers: int = 1) -> dict[str
             with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
                 for job, _ in zip(todo, pool.map(generate_segment, todo), strict=True):
                     bar.update(job.num_tasks)
+    _warn_if_fewer_attempts(jobs, opts)
     validation = opts.validation_segments()
     for name in splits:
         selected = [job for job in jobs if (job.index in validation) == (name == "validation")]
@@ -285,7 +300,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--assets-dir", default=None, help="calvin_env clone (needed for calvin_* scenes)")
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--val-fraction", type=float, default=0.1)
-    parser.add_argument("--tasks-per-segment", type=int, default=8)
+    parser.add_argument(
+        "--tasks-per-segment",
+        type=int,
+        default=8,
+        help="task attempts in a row per start state (a segment ends early when no --tasks task is feasible)",
+    )
     parser.add_argument("--max-steps-per-task", type=int, default=360)
     parser.add_argument("--static-size", type=int, default=200)
     parser.add_argument("--gripper-size", type=int, default=84)

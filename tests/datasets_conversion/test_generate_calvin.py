@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -153,6 +154,16 @@ def test_task_filter_limits_what_the_expert_plays(tmp_path: Path) -> None:
     assert len(tasks) > 0 and set(tasks) <= {"turn_on_led", "turn_off_led"}
     generate_calvin._check_options(tmp_path / "again" / ".segments", options)  # tuples round-trip via JSON
     generate_calvin._check_options(tmp_path / "again" / ".segments", options)
+
+
+def test_fewer_attempts_than_asked_for_are_reported(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    # once the LED is on, turn_on_led is infeasible: the segment of 2 ends after its first attempt
+    options = GeneratorOptions(num_tasks=2, seed=0, val_fraction=0.0, tasks_per_segment=2, static_size=16,
+                               gripper_size=16, tasks=("turn_on_led",))  # fmt: skip
+    with caplog.at_level(logging.WARNING, logger=generate_calvin.__name__):
+        generate(tmp_path / "led", options)
+    assert "attempted 1 of the 2 tasks asked for" in caplog.text
+    assert "--tasks-per-segment 1" in caplog.text
 
 
 def test_egl_renderer_generates_frames_like_calvins_data(tmp_path: Path) -> None:
