@@ -38,7 +38,9 @@ def specs(tasks: list[str], methods: list[str], seeds: list[int], steps: int, de
         )
         for seed in seeds:
             for name in methods:
-                yield RunSpec(METHODS[name], "single_task", data, (task,), seed, steps, episodes)
+                # SubgoalVLA trains through both stages, stage II for the last fifth (as the demo does)
+                extra = (f"--policy.stage2_start_step={steps * 4 // 5}",) if name == "subgoalvla" else ()
+                yield RunSpec(METHODS[name], "single_task", data, (task,), seed, steps, episodes, extra)
 
 
 def main() -> None:
