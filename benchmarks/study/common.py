@@ -143,6 +143,11 @@ class Method:
     batch_size: int = 32
 
 
+def two_stage_flags(steps: int) -> tuple[str, ...]:
+    """SubgoalVLA through both stages: stage II for the last fifth of ``steps``, as the demo does."""
+    return (f"--policy.stage2_start_step={steps * 4 // 5}",)
+
+
 @dataclass
 class RunSpec:
     """One training run and the tasks it is evaluated on."""

@@ -32,6 +32,7 @@ from common import (
     Method,
     RunSpec,
     execute,
+    two_stage_flags,
 )
 from demo_import import records_from_demo
 from records import load_records, record_key, store_records
@@ -139,7 +140,7 @@ def main() -> None:
     data = DataSpec("fixtures", FIXTURE_TASKS, args.demos)
     data_84 = DataSpec("fixtures84", FIXTURE_TASKS, args.demos, static_size=84)
     for name in args.methods:
-        extra = (f"--policy.stage2_start_step={args.steps * 4 // 5}",) if name in TWO_STAGE else ()
+        extra = two_stage_flags(args.steps) if name in TWO_STAGE else ()
         if name == "multi_task_dit":
             from random_clip import save_random_clip
 

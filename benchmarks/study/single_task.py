@@ -19,7 +19,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from common import EVAL_SEED, FIXTURE_TASKS, DataSpec, Method, RunSpec, execute
+from common import EVAL_SEED, FIXTURE_TASKS, DataSpec, Method, RunSpec, execute, two_stage_flags
 
 METHODS = {
     "subgoalvla": Method("subgoalvla", ("--policy.type=subgoalvla", "--policy.preset=laptop")),
@@ -38,8 +38,7 @@ def specs(tasks: list[str], methods: list[str], seeds: list[int], steps: int, de
         )
         for seed in seeds:
             for name in methods:
-                # SubgoalVLA trains through both stages, stage II for the last fifth (as the demo does)
-                extra = (f"--policy.stage2_start_step={steps * 4 // 5}",) if name == "subgoalvla" else ()
+                extra = two_stage_flags(steps) if name == "subgoalvla" else ()
                 yield RunSpec(METHODS[name], "single_task", data, (task,), seed, steps, episodes, extra)
 
 
@@ -59,7 +58,7 @@ def main() -> None:
     args = parser.parse_args()
     for spec in specs(args.tasks, args.methods, args.seeds, args.steps, args.demos, args.episodes):
         if args.dry_run:
-            print(spec.run_name, " ".join(spec.method.policy_flags))
+            print(spec.run_name, " ".join((*spec.method.policy_flags, *spec.extra_train_flags)))
             continue
         for record in execute(spec, args.work_dir):
             print(

@@ -165,6 +165,11 @@ def generate_segment(job: SegmentJob) -> int:
     return segment.num_frames
 
 
+def _segment_summary(job: SegmentJob) -> dict:
+    """The ``segment.json`` that ``generate_segment`` wrote: frames, windows, attempted and done tasks."""
+    return json.loads((job.directory / "segment.json").read_text())
+
+
 def _assemble_split(output: Path, name: str, jobs: list[SegmentJob], opts: GeneratorOptions) -> None:
     """Hard-link the segments' frames into ``OUTPUT/<name>`` with consecutive ids and write the index
     files."""
@@ -174,7 +179,7 @@ def _assemble_split(output: Path, name: str, jobs: list[SegmentJob], opts: Gener
     rows, indx, anns, tasks, lowdim = [], [], [], [], {"robot_obs": [], "scene_obs": [], "actions": []}
     next_id, attempted, completed = 0, 0, 0
     for job in jobs:
-        summary = json.loads((job.directory / "segment.json").read_text())
+        summary = _segment_summary(job)
         num = summary["num_frames"]
         attempted, completed = attempted + len(summary["attempted"]), completed + len(summary["completed"])
         if num == 0:
@@ -212,8 +217,7 @@ def _assemble_split(output: Path, name: str, jobs: list[SegmentJob], opts: Gener
 def _warn_if_fewer_attempts(jobs: list[SegmentJob], opts: GeneratorOptions) -> None:
     """A segment ends early when none of ``opts.tasks`` is feasible any more (one task: after its first
     attempt); say so rather than hand back fewer demonstrations than ``--num-tasks`` without a word."""
-    summaries = (json.loads((job.directory / "segment.json").read_text()) for job in jobs)
-    attempted = sum(len(summary["attempted"]) for summary in summaries)
+    attempted = sum(len(_segment_summary(job)["attempted"]) for job in jobs)
     if attempted < opts.num_tasks:
         logger.warning(
             "the expert attempted %d of the %d tasks asked for: a segment ends when none of --tasks is "
