@@ -35,9 +35,11 @@ def test_unknown_task_names_the_valid_ones():
 
 
 def test_tiny_tokenizer_knows_every_training_and_evaluation_word():
+    from helpers.vocabulary import CALVIN_WORDS
+
     from lerobot_subgoalvla.policies.subgoalvla.backbone import UNK_TOKEN, build_tiny_tokenizer
 
-    tokenizer = build_tiny_tokenizer()
+    tokenizer = build_tiny_tokenizer(CALVIN_WORDS)
     unk = tokenizer.convert_tokens_to_ids(UNK_TOKEN)
     texts = [*EVAL_INSTRUCTIONS.values(), *(t for texts in TRAINING_ANNOTATIONS.values() for t in texts)]
     unknown = [text for text in texts if unk in tokenizer(text, add_special_tokens=False)["input_ids"]]

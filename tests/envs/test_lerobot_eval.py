@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from helpers.vocabulary import calvin_backbone
 from lerobot.configs import FeatureType
 from lerobot.envs.utils import env_to_policy_features
 from lerobot.policies.act.configuration_act import ACTConfig
@@ -189,6 +190,7 @@ def test_lerobot_eval_with_a_tiny_subgoalvla_checkpoint(tmp_path: Path) -> None:
     config = SubgoalVLAConfig(
         device="cpu",
         preset="tiny",
+        backbone=calvin_backbone(),
         push_to_hub=False,
         input_features={k: v for k, v in features.items() if v.type is not FeatureType.ACTION},
         output_features={"action": features["action"]},

@@ -1,10 +1,10 @@
-"""A factory for tiny CALVIN-style LeRobotDatasets that follow the data contract (DESIGN.md "Data contract").
+"""A factory for tiny CALVIN-style LeRobotDatasets that follow the data contract (docs/architecture.md).
 
 The frames are synthetic but consistent: the robot state integrates the actions (so actions are predictable
 from state changes), the cameras show the episode's colour with a bright square at a state-dependent position,
-and the history / trace columns are computed with the project's own ``subgoal_traces`` functions, exactly as
-the converter does. Built with LeRobot's write protocol (``create`` -> ``add_frame`` -> ``save_episode`` ->
-``finalize``).
+and the history / trace columns are computed with the contract's ``TraceWindow`` and carry its metadata
+(CALVIN's angle dims), exactly as the converter writes them. Built with LeRobot's write protocol
+(``create`` -> ``add_frame`` -> ``save_episode`` -> ``finalize``).
 
 Usage::
 
@@ -15,19 +15,27 @@ Usage::
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 from lerobot.datasets import LeRobotDataset
 
 from lerobot_subgoalvla.calvin_vocab import ACTION_NAMES, CALVIN_FPS, EVAL_INSTRUCTIONS, ROBOT_OBS_NAMES
-from lerobot_subgoalvla.datasets_conversion.subgoal_traces import (
-    DEFAULT_HISTORY_LENGTH,
-    DEFAULT_TRACE_LENGTH,
-    DEFAULT_TRACE_START,
-    state_history,
-    subgoal_traces,
+from lerobot_subgoalvla.contract import calvin
+from lerobot_subgoalvla.contract.keys import (
+    ACTION_KEY,
+    ENV_STATE_KEY,
+    STATE_HISTORY_KEY,
+    STATE_KEY,
+    SUBGOAL_TRACE_KEY,
+    TASK_KEY,
+)
+from lerobot_subgoalvla.contract.metadata import ProprioMetadata
+from lerobot_subgoalvla.contract.window import (
+    PAPER_HISTORY_LENGTH,
+    PAPER_TRACE_LENGTH,
+    PAPER_TRACE_START,
+    TraceWindow,
 )
 
 DEFAULT_REPO_ID = "local/tiny_calvin"
@@ -41,33 +49,33 @@ STATE_DIM, ACTION_DIM, SCENE_DIM = len(ROBOT_OBS_NAMES), len(ACTION_NAMES), 24
 
 
 def tiny_calvin_features(
-    static_size: int, gripper_size: int, use_videos: bool, history_length: int, trace_length: int
+    static_size: int, gripper_size: int, use_videos: bool, window: TraceWindow
 ) -> dict[str, dict]:
-    """LeRobot feature schema of the data contract at the given image sizes."""
+    """LeRobot feature schema of the data contract at the given image sizes, with the trace metadata."""
     image_dtype = "video" if use_videos else "image"
     hwc = ["height", "width", "channels"]
-    return {
-        "observation.images.static": {
+    features = {
+        calvin.STATIC_CAMERA_KEY: {
             "dtype": image_dtype,
             "shape": (static_size, static_size, 3),
             "names": hwc,
         },
-        "observation.images.gripper": {
+        calvin.GRIPPER_CAMERA_KEY: {
             "dtype": image_dtype,
             "shape": (gripper_size, gripper_size, 3),
             "names": hwc,
         },
-        "observation.state": {"dtype": "float32", "shape": (STATE_DIM,), "names": list(ROBOT_OBS_NAMES)},
-        "observation.environment_state": {"dtype": "float32", "shape": (SCENE_DIM,), "names": None},
-        "observation.state_history": {
-            "dtype": "float32",
-            "shape": (history_length, STATE_DIM),
-            "names": None,
-        },
-        "observation.subgoal_trace": {"dtype": "float32", "shape": (trace_length, STATE_DIM), "names": None},
-        "action": {"dtype": "float32", "shape": (ACTION_DIM,), "names": list(ACTION_NAMES)},
-        "calvin_frame_index": {"dtype": "int64", "shape": (1,), "names": None},
+        STATE_KEY: {"dtype": "float32", "shape": (STATE_DIM,), "names": list(ROBOT_OBS_NAMES)},
+        ENV_STATE_KEY: {"dtype": "float32", "shape": (SCENE_DIM,), "names": None},
+        STATE_HISTORY_KEY: {"dtype": "float32", "shape": (window.history_length, STATE_DIM), "names": None},
+        SUBGOAL_TRACE_KEY: {"dtype": "float32", "shape": (window.trace_length, STATE_DIM), "names": None},
+        ACTION_KEY: {"dtype": "float32", "shape": (ACTION_DIM,), "names": list(ACTION_NAMES)},
+        calvin.FRAME_INDEX_KEY: {"dtype": "int64", "shape": (1,), "names": None},
     }
+    metadata = ProprioMetadata(
+        window, CALVIN_FPS, calvin.ANGLE_DIMS, calvin.ANGLE_HOME, tuple(EVAL_INSTRUCTIONS.values()), "tests"
+    )
+    return metadata.attach(features)
 
 
 def _episode_arrays(rng: np.random.Generator, episode_len: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -106,9 +114,9 @@ def make_tiny_calvin_dataset(
     use_videos: bool = False,
     repo_id: str = DEFAULT_REPO_ID,
     seed: int = 0,
-    history_length: int = DEFAULT_HISTORY_LENGTH,
-    trace_start: int = DEFAULT_TRACE_START,
-    trace_length: int = DEFAULT_TRACE_LENGTH,
+    history_length: int = PAPER_HISTORY_LENGTH,
+    trace_start: int = PAPER_TRACE_START,
+    trace_length: int = PAPER_TRACE_LENGTH,
     drop_features: tuple[str, ...] = (),
 ) -> LeRobotDataset:
     """Write a tiny CALVIN-style dataset at ``root`` (must not exist) and return it opened for reading.
@@ -122,7 +130,7 @@ def make_tiny_calvin_dataset(
         use_videos: store cameras as AV1 videos (slow to encode) instead of PNG images in the parquet files.
         repo_id: the dataset's label (``--dataset.repo_id``).
         seed: seed of the synthetic trajectories.
-        history_length, trace_start, trace_length: the converter options, recorded in ``meta/info.json``.
+        history_length, trace_start, trace_length: the window, recorded in the trace feature's metadata.
         drop_features: contract keys to leave out (to test the policy's missing-feature errors).
 
     Returns:
@@ -130,7 +138,8 @@ def make_tiny_calvin_dataset(
     """
     root = Path(root)
     rng = np.random.default_rng(seed)
-    features = tiny_calvin_features(static_size, gripper_size, use_videos, history_length, trace_length)
+    window = TraceWindow(history_length, trace_start, trace_length)
+    features = tiny_calvin_features(static_size, gripper_size, use_videos, window)
     features = {key: value for key, value in features.items() if key not in drop_features}
     dataset = LeRobotDataset.create(
         repo_id=repo_id,
@@ -143,31 +152,22 @@ def make_tiny_calvin_dataset(
     frame_index = 0
     for episode in range(num_episodes):
         actions, states, scene = _episode_arrays(rng, episode_len)
-        histories = state_history(states, history_length)  # (T, L_h, 15)
-        traces = subgoal_traces(states, trace_start, trace_length)  # (T, L_s, 15)
+        histories, traces = window.histories(states), window.traces(states)  # (T, h, 15), (T, M, 15)
         colour = rng.integers(0, 200, size=3, dtype=np.uint8)
         for t in range(episode_len):
             frame = {
-                "observation.images.static": _render(static_size, colour, states[t]),
-                "observation.images.gripper": _render(gripper_size, colour[::-1], states[t]),
-                "observation.state": states[t],
-                "observation.environment_state": scene[t],
-                "observation.state_history": histories[t],
-                "observation.subgoal_trace": traces[t],
-                "action": actions[t],
-                "calvin_frame_index": np.array([frame_index], dtype=np.int64),
-                "task": INSTRUCTIONS[episode % len(INSTRUCTIONS)],
+                calvin.STATIC_CAMERA_KEY: _render(static_size, colour, states[t]),
+                calvin.GRIPPER_CAMERA_KEY: _render(gripper_size, colour[::-1], states[t]),
+                STATE_KEY: states[t],
+                ENV_STATE_KEY: scene[t],
+                STATE_HISTORY_KEY: histories[t],
+                SUBGOAL_TRACE_KEY: traces[t],
+                ACTION_KEY: actions[t],
+                calvin.FRAME_INDEX_KEY: np.array([frame_index], dtype=np.int64),
+                TASK_KEY: INSTRUCTIONS[episode % len(INSTRUCTIONS)],
             }
             dataset.add_frame({key: value for key, value in frame.items() if key not in drop_features})
             frame_index += 1
         dataset.save_episode()
     dataset.finalize()
-    info_path = root / "meta" / "info.json"
-    info = json.loads(info_path.read_text())
-    info["subgoalvla"] = {
-        "trace_start": trace_start,
-        "trace_length": trace_length,
-        "history_length": history_length,
-    }
-    info_path.write_text(json.dumps(info, indent=4))
     return LeRobotDataset(repo_id, root=root)

@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 import torch
 from helpers.lerobot_datasets import make_tiny_calvin_dataset
+from helpers.vocabulary import calvin_backbone
 from lerobot.datasets import LeRobotDataset
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot.utils.feature_utils import dataset_to_policy_features
@@ -64,6 +65,7 @@ def make_config(tiny_dataset: LeRobotDataset) -> Callable[..., SubgoalVLAConfig]
 
     def factory(**overrides: Any) -> SubgoalVLAConfig:
         features = dataset_to_policy_features(tiny_dataset.meta.features)
+        overrides.setdefault("backbone", calvin_backbone())
         return SubgoalVLAConfig(
             device="cpu",
             chunk_size=CHUNK_SIZE,
@@ -94,6 +96,8 @@ def make_processors(tiny_dataset: LeRobotDataset) -> Callable[[SubgoalVLAConfig]
     """Factory: (preprocessor, postprocessor) from a config and the dataset statistics (no policy)."""
 
     def factory(config: SubgoalVLAConfig) -> tuple[Any, Any]:
+        # lerobot-train builds the policy first, which adopts the dataset's window and angles into the config
+        config.set_dataset_feature_metadata(tiny_dataset.meta.features)
         return make_pre_post_processors(config, dataset_stats=tiny_dataset.meta.stats)
 
     return factory

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from helpers.vocabulary import CALVIN_WORDS, calvin_backbone
 from transformers import (
     AutoModel,
     CLIPImageProcessor,
@@ -35,18 +36,18 @@ from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import Subg
 INSTRUCTIONS = ["open the drawer", "push the sliding door to the left side"]
 
 #: The tiny preset's backbone dimensions (the one place they are set).
-TINY = SubgoalVLAConfig(preset="tiny").backbone.tiny_dims()
+TINY = SubgoalVLAConfig(preset="tiny", backbone=calvin_backbone()).backbone.tiny_dims()
 
 
 def _inputs(backbone: VLMBackbone, batch: int = 2) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    tokenizer = build_tiny_tokenizer()
+    tokenizer = build_tiny_tokenizer(CALVIN_WORDS)
     ids, mask = tokenize_instructions(tokenizer, INSTRUCTIONS[:batch], 10, backbone.input_spec)
-    pixels = backbone.prepare_pixel_values(torch.rand(batch, 3, 200, 200), torch.rand(batch, 3, 84, 84))
+    pixels = backbone.prepare_pixel_values([torch.rand(batch, 3, 200, 200), torch.rand(batch, 3, 84, 84)])
     return ids, mask, pixels
 
 
 def test_tiny_tokenizer_is_deterministic_and_covers_calvin_instructions() -> None:
-    first, second = build_tiny_tokenizer(), build_tiny_tokenizer()
+    first, second = build_tiny_tokenizer(CALVIN_WORDS), build_tiny_tokenizer(CALVIN_WORDS)
     assert first.get_vocab() == second.get_vocab()
     for instruction in EVAL_INSTRUCTIONS.values():
         ids = first(instruction, add_special_tokens=False)["input_ids"]
@@ -57,7 +58,7 @@ def test_tiny_tokenizer_is_deterministic_and_covers_calvin_instructions() -> Non
 def test_tokenize_instructions_expands_image_placeholders_and_pads() -> None:
     spec = VLMInputSpec.load(None, TINY)
     assert spec.num_image_tokens == (32 // 8) ** 2
-    ids, mask = tokenize_instructions(build_tiny_tokenizer(), INSTRUCTIONS, 12, spec)
+    ids, mask = tokenize_instructions(build_tiny_tokenizer(CALVIN_WORDS), INSTRUCTIONS, 12, spec)
     assert ids.shape == mask.shape == (2, spec.num_image_tokens + 12)
     assert (ids[:, : spec.num_image_tokens] == spec.image_token_id).all()
     assert (ids[:, spec.num_image_tokens :] != spec.image_token_id).all()
@@ -68,10 +69,22 @@ def test_tokenize_instructions_expands_image_placeholders_and_pads() -> None:
 def test_prepare_pixel_values_places_cameras_side_by_side() -> None:
     static = torch.zeros(1, 3, 200, 200)
     gripper = torch.ones(1, 3, 84, 84)
-    pixels = prepare_pixel_values(static, gripper, 32, (0.5, 0.5, 0.5), (0.5, 0.5, 0.5))
+    pixels = prepare_pixel_values([static, gripper], 32, (0.5, 0.5, 0.5), (0.5, 0.5, 0.5))
     assert pixels.shape == (1, 3, 32, 32)
     torch.testing.assert_close(pixels[..., :16], torch.full((1, 3, 32, 16), -1.0))
     torch.testing.assert_close(pixels[..., 16:], torch.full((1, 3, 32, 16), 1.0))
+
+
+@pytest.mark.parametrize("num_cameras", [1, 3])
+def test_prepare_pixel_values_gives_each_camera_a_strip_in_order(num_cameras: int) -> None:
+    """One camera fills the square; K cameras get K strips of R / K columns, left to right in their order."""
+    views = [torch.full((1, 3, 48, 64), float(k) / num_cameras) for k in range(num_cameras)]
+    pixels = prepare_pixel_values(views, 33, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0))
+    assert pixels.shape == (1, 3, 33, 33)
+    bounds = [33 * k // num_cameras for k in range(num_cameras + 1)]
+    for k, (left, right) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+        expected = torch.full((1, 3, 33, right - left), k / num_cameras)
+        torch.testing.assert_close(pixels[..., left:right], expected)
 
 
 def test_backbone_returns_layer_k_hidden_states_and_mask() -> None:
@@ -136,7 +149,7 @@ def _save_tiny_checkpoint(path: Path) -> LlavaForConditionalGeneration:
     config = build_tiny_llava_config(dataclasses.replace(TINY, text_num_layers=4))
     model = LlavaForConditionalGeneration(config).eval()
     model.save_pretrained(path)
-    build_tiny_tokenizer().save_pretrained(path)
+    build_tiny_tokenizer(CALVIN_WORDS).save_pretrained(path)
     CLIPImageProcessor(
         size={"shortest_edge": 32},
         crop_size={"height": 32, "width": 32},
@@ -153,9 +166,9 @@ def test_from_pretrained_path_loads_offline(tmp_path: Path) -> None:
     spec = VLMInputSpec.load(str(tmp_path))
     assert spec == backbone.input_spec and spec.image_mean == (0.5, 0.5, 0.5)
     tokenizer = load_tokenizer(str(tmp_path))
-    assert tokenizer.get_vocab() == build_tiny_tokenizer().get_vocab()
+    assert tokenizer.get_vocab() == build_tiny_tokenizer(CALVIN_WORDS).get_vocab()
     ids, mask = tokenize_instructions(tokenizer, INSTRUCTIONS, 10, spec)
-    pixels = backbone.prepare_pixel_values(torch.rand(2, 3, 200, 200), torch.rand(2, 3, 84, 84))
+    pixels = backbone.prepare_pixel_values([torch.rand(2, 3, 200, 200), torch.rand(2, 3, 84, 84)])
     with torch.no_grad():
         hidden, _ = backbone(ids, mask, pixels)
         reference = saved.model(
@@ -226,7 +239,7 @@ def test_siglip_qwen_architecture_runs_at_tiny_dims() -> None:
     ids = torch.cat([torch.full((2, 4), 63), torch.randint(0, 60, (2, 6))], dim=1)
     mask = torch.ones_like(ids)
     mask[1, -2:] = 0
-    pixels = backbone.prepare_pixel_values(torch.rand(2, 3, 200, 200), torch.rand(2, 3, 84, 84))
+    pixels = backbone.prepare_pixel_values([torch.rand(2, 3, 200, 200), torch.rand(2, 3, 84, 84)])
     with torch.no_grad():
         hidden, valid = backbone(ids, mask, pixels)
     assert hidden.shape == (2, 10, 32) and valid.sum().item() == 18 and torch.isfinite(hidden).all()

@@ -9,10 +9,9 @@ from draccus.utils import ParsingError
 from lerobot.configs import FeatureType, PolicyFeature, PreTrainedConfig
 
 from lerobot_subgoalvla.config_error import ConfigError
-from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
-    CONVERTER_COMMAND,
-    SubgoalVLAConfig,
-)
+from lerobot_subgoalvla.contract.metadata import ProprioMetadata
+from lerobot_subgoalvla.contract.window import TraceWindow
+from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
 
 
 def parse(*args: str) -> SubgoalVLAConfig:
@@ -105,6 +104,11 @@ def _features(*keys: str) -> dict[str, PolicyFeature]:
         "observation.images.gripper": (FeatureType.VISUAL, (3, 16, 16)),
         "observation.state_history": (FeatureType.STATE, (15, 15)),
         "observation.subgoal_trace": (FeatureType.STATE, (8, 15)),
+        "observation.environment_state": (FeatureType.ENV, (24,)),
+        "observation.image": (FeatureType.VISUAL, (3, 32, 32)),
+        "observation.images.a": (FeatureType.VISUAL, (3, 32, 32)),
+        "observation.images.b": (FeatureType.VISUAL, (3, 16, 16)),
+        "observation.images.c": (FeatureType.VISUAL, (3, 24, 24)),
     }
     return {key: PolicyFeature(type=shapes[key][0], shape=shapes[key][1]) for key in keys}
 
@@ -118,35 +122,90 @@ def test_validate_features_accepts_an_env_without_trace_or_history() -> None:
     cfg.validate_features()  # evaluation: the env gives cameras + state, the policy builds the history
 
 
-@pytest.mark.parametrize(
-    "missing", ["observation.state", "observation.images.static", "observation.images.gripper"]
-)
-def test_validate_features_names_the_missing_feature_and_the_converter(missing: str) -> None:
+def test_validate_features_names_everything_missing_at_once() -> None:
     cfg = parse()
-    keys = ["observation.state", "observation.images.static", "observation.images.gripper"]
-    cfg.input_features = _features(*[k for k in keys if k != missing])
-    cfg.output_features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(7,))}
-    with pytest.raises(ValueError, match=missing) as info:
+    cfg.input_features = _features("observation.environment_state")
+    with pytest.raises(ValueError) as info:
         cfg.validate_features()
-    assert CONVERTER_COMMAND in str(info.value) and "\n" not in str(info.value)
+    message = str(info.value)
+    assert "observation.state" in message and "a camera" in message and "'action'" in message
+    assert "\n" not in message
 
 
-def test_dataset_features_need_trace_and_matching_history() -> None:
+@pytest.mark.parametrize(
+    "cameras",
+    [("observation.image",), ("observation.images.a", "observation.images.b", "observation.images.c")],
+)
+def test_any_number_of_cameras_in_feature_order_or_chosen(cameras: tuple[str, ...]) -> None:
     cfg = parse()
+    cfg.input_features = _features("observation.state", *cameras)
+    cfg.output_features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(4,))}
+    cfg.validate_features()
+    assert cfg.image_features_in_order == list(cameras)
+    chosen = parse(f"--camera_keys=[{cameras[-1]}]")
+    chosen.input_features, chosen.output_features = cfg.input_features, cfg.output_features
+    chosen.validate_features()
+    assert chosen.image_features_in_order == [cameras[-1]]
+    wrong = parse("--camera_keys=[observation.images.top]")
+    wrong.input_features, wrong.output_features = cfg.input_features, cfg.output_features
+    with pytest.raises(ValueError, match="not cameras of the dataset/env; its cameras are"):
+        wrong.validate_features()
+
+
+def _dataset_features(state_dim: int = 15, **metadata: object) -> dict:
+    window = TraceWindow(15, 14, 8, 1)
     features = {
-        "observation.state": {"shape": (15,)},
-        "observation.images.static": {"shape": (32, 32, 3)},
-        "observation.images.gripper": {"shape": (16, 16, 3)},
-        "observation.state_history": {"shape": (15, 15)},
-        "action": {"shape": (7,)},
+        "observation.state": {"dtype": "float32", "shape": (state_dim,)},
+        "observation.image": {"dtype": "video", "shape": (32, 32, 3)},
+        "observation.state_history": {"dtype": "float32", "shape": (15, state_dim)},
+        "observation.subgoal_trace": {"dtype": "float32", "shape": (8, state_dim)},
+        "action": {"dtype": "float32", "shape": (4,)},
     }
-    with pytest.raises(ValueError, match="observation.subgoal_trace"):
-        cfg.validate_dataset_features(features)
-    features["observation.subgoal_trace"] = {"shape": (8, 15)}
-    cfg.validate_dataset_features(features)
-    features["observation.state_history"] = {"shape": (10, 15)}
-    with pytest.raises(ValueError, match="state_history_len=15"):
-        cfg.validate_dataset_features(features)
+    return ProprioMetadata(window, 30, **metadata).attach(features)
+
+
+def test_dataset_features_need_state_camera_history_and_trace_named_at_once() -> None:
+    features = _dataset_features()
+    for key in ("observation.state_history", "observation.subgoal_trace", "observation.image"):
+        features.pop(key)
+    with pytest.raises(ValueError) as info:
+        parse().set_dataset_feature_metadata(features)
+    message = str(info.value)
+    assert "observation.state_history" in message and "observation.subgoal_trace" in message
+    assert "a camera" in message and "subgoalvla-add-traces" in message
+
+
+def test_dataset_window_and_angles_are_adopted_and_checked() -> None:
+    cfg = parse()
+    cfg.set_dataset_feature_metadata(_dataset_features(angle_dims=(3,), angle_home=(3.0,)))
+    assert (cfg.state_stride, cfg.subgoal_trace_start) == (1, 14)
+    assert cfg.state_angle_dims == (3,) and cfg.state_angle_home == (3.0,)
+    plain = parse()
+    plain.set_dataset_feature_metadata(_dataset_features())
+    assert plain.state_angle_dims == ()  # no angle settings: plain normalisation
+    with pytest.raises(
+        ValueError, match="subgoal_trace_start=20 but the dataset's trace columns were cut with 14"
+    ):
+        parse("--subgoal_trace_start=20").set_dataset_feature_metadata(_dataset_features())
+    with pytest.raises(ValueError, match="do not fit the 2-dim observation.state"):
+        parse().set_dataset_feature_metadata(
+            _dataset_features(state_dim=2, angle_dims=(3,), angle_home=(0.0,))
+        )
+    with pytest.raises(ValueError, match="state_history_len=10"):
+        parse("--state_history_len=10").set_dataset_feature_metadata(_dataset_features())
+
+
+def test_a_dataset_without_window_metadata_gets_one_line_saying_how_to_update_it() -> None:
+    features = _dataset_features()
+    del features["observation.subgoal_trace"]["info"]
+    with pytest.raises(ValueError, match="carries no window metadata") as info:
+        parse().set_dataset_feature_metadata(features)
+    assert "subgoalvla-convert-calvin" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_angle_flags_must_pair_up() -> None:
+    with pytest.raises(ConfigError, match="one value per --policy.state_angle_dims entry"):
+        parse("--state_angle_dims=[3,4]", "--state_angle_home=[0.0]")
 
 
 def test_delta_indices_and_stage_schedule() -> None:

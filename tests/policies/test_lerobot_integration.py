@@ -211,19 +211,22 @@ def test_accelerate_launch_two_cpu_processes(tiny_dataset_root: Path, tmp_path: 
 
 
 @pytest.mark.parametrize(
-    "missing", ["observation.subgoal_trace", "observation.state_history", "observation.images.gripper"]
+    ("missing", "named"),
+    [
+        (("observation.subgoal_trace",), "observation.subgoal_trace"),
+        (("observation.state_history", "observation.subgoal_trace"), "observation.state_history"),
+        (("observation.images.static", "observation.images.gripper"), "a camera"),
+    ],
 )
 def test_a_dataset_without_a_contract_feature_gets_one_line(
-    tmp_path: Path, make_config, missing: str
+    tmp_path: Path, make_config, missing: tuple[str, ...], named: str
 ) -> None:
-    dataset = make_tiny_calvin_dataset(
-        tmp_path / "ds", num_episodes=1, episode_len=3, drop_features=(missing,)
-    )
+    dataset = make_tiny_calvin_dataset(tmp_path / "ds", num_episodes=1, episode_len=3, drop_features=missing)
     with pytest.raises(ValueError) as info:
         make_policy(make_config(), ds_meta=dataset.meta)  # what lerobot-train calls
     message = str(info.value)
-    assert missing in message and "subgoalvla-convert-calvin <CALVIN_DIR> --repo-id <id>" in message
-    assert "\n" not in message
+    assert all(key in message for key in missing if "images" not in key) and named in message
+    assert "subgoalvla-add-traces" in message and "\n" not in message
 
 
 def test_loading_a_hub_id_offline_fails_with_one_clear_line() -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
+from helpers.vocabulary import CALVIN_WORDS, calvin_backbone
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
 
@@ -22,6 +23,7 @@ def make_config(**overrides: object) -> SubgoalVLAConfig:
     }
     config = SubgoalVLAConfig(
         preset="tiny",
+        backbone=calvin_backbone(),
         input_features=features,
         output_features={"action": PolicyFeature(type=FeatureType.ACTION, shape=(A,))},
         **overrides,
@@ -33,7 +35,9 @@ def make_config(**overrides: object) -> SubgoalVLAConfig:
 
 def make_batch(model: SubgoalVLAModel, batch_size: int = 2) -> dict[str, torch.Tensor]:
     instructions = ["open the drawer", "lift the red block from the sliding cabinet"][:batch_size]
-    ids, mask = tokenize_instructions(build_tiny_tokenizer(), instructions, 12, model.backbone.input_spec)
+    ids, mask = tokenize_instructions(
+        build_tiny_tokenizer(CALVIN_WORDS), instructions, 12, model.backbone.input_spec
+    )
     is_pad = torch.zeros(batch_size, N, dtype=torch.bool)
     is_pad[0, -3:] = True
     return {

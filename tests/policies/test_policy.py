@@ -140,13 +140,13 @@ def test_every_ablation_trains_a_step(make_config, make_policy_and_processors, r
     assert (policy.model.planner is None) == (overrides == {"use_planner": False})
 
 
-def test_forward_without_a_trace_names_the_converter(
+def test_forward_without_a_trace_names_the_command_that_adds_it(
     make_config, make_policy_and_processors, raw_batch
 ) -> None:
     policy, pre, _ = make_policy_and_processors(make_config())
     batch = pre(dict(raw_batch))
     batch.pop("observation.subgoal_trace")
-    with pytest.raises(ValueError, match="observation.subgoal_trace.*subgoalvla-convert-calvin"):
+    with pytest.raises(ValueError, match="observation.subgoal_trace.*subgoalvla-add-traces"):
         policy.forward(batch)
 
 

@@ -166,6 +166,7 @@ def test_tokenizer_step_config_round_trips() -> None:
             "vision_num_heads": 4,
             "image_size": 32,
             "patch_size": 8,
+            "vocabulary": ["open", "the", "drawer"],
         },
         max_length=12,
     )
@@ -173,3 +174,24 @@ def test_tokenizer_step_config_round_trips() -> None:
     assert clone.get_config() == step.get_config() and clone.sequence_length == 16 + 12
     with pytest.raises(ValueError, match="exactly one of name_or_path / tiny_dims"):
         SubgoalVLATokenizerProcessorStep()
+    old = {key: value for key, value in step.get_config()["tiny_dims"].items() if key != "vocabulary"}
+    with pytest.raises(ValueError, match="saved before tiny vocabularies were stored"):
+        SubgoalVLATokenizerProcessorStep(tiny_dims=old)
+
+
+def test_unknown_words_are_named_once_per_instruction(
+    make_config, make_processors, raw_batch, caplog
+) -> None:
+    pre, _ = make_processors(make_config())
+    batch = dict(raw_batch)
+    batch["task"] = [
+        "open the drawer",
+        "open the fridge quickly",
+        "open the fridge quickly",
+        "open the drawer",
+    ]
+    with caplog.at_level("WARNING"):
+        pre(dict(batch))
+        pre(dict(batch))
+    warnings = [r.getMessage() for r in caplog.records if "never saw in training" in r.getMessage()]
+    assert len(warnings) == 1 and "['fridge', 'quickly']" in warnings[0]

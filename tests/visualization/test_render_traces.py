@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 from helpers.lerobot_datasets import make_tiny_calvin_dataset
+from helpers.vocabulary import calvin_backbone
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot.utils.feature_utils import dataset_to_policy_features
 from PIL import Image
@@ -28,6 +29,7 @@ def _config(dataset: Any, **overrides: Any) -> SubgoalVLAConfig:
     features = dataset_to_policy_features(dataset.meta.features)
     return SubgoalVLAConfig(
         device="cpu",
+        backbone=calvin_backbone(),
         chunk_size=15,
         n_action_steps=N_ACTION_STEPS,
         input_features={k: v for k, v in features.items() if k != "action"},

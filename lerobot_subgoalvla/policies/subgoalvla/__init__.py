@@ -9,8 +9,8 @@ uses):
 | ``h`` | state-history steps (``state_history_len``) |
 | ``M`` | subgoal-trace steps (``subgoal_trace_len``) |
 | ``N`` | action-chunk steps (``chunk_size``) |
-| ``p`` | proprioceptive state size (15 in CALVIN's ``robot_obs``) |
-| ``A`` | action size (7) |
+| ``p`` | proprioceptive state size, the dataset's ``observation.state`` (15 for CALVIN, 4 for Meta-World) |
+| ``A`` | action size, the dataset's ``action`` (7 for CALVIN, 4 for Meta-World) |
 | ``S`` | VLM tokens: image placeholders + instruction (the tokenised sequence) |
 | ``E`` | VLM (LLM) hidden size, also the aggregators' output width |
 | ``D`` | a module's own width: DiT hidden size, or an aggregator's internal width |

@@ -21,7 +21,7 @@ Input helpers the processor and model call:
 ``load_tokenizer`` / ``build_tiny_tokenizer`` - the tokenizer; ``VLMInputSpec.load`` - image size, mean/std
 and image-placeholder facts from the model config alone (no weights); ``tokenize_instructions`` - LLaVA-style
 input ids with the ``<image>`` placeholder expanded to one id per image token; ``prepare_pixel_values`` - the
-two cameras side by side, resized to the vision tower's size and normalised with its statistics.
+cameras side by side, resized to the vision tower's size and normalised with its statistics.
 
 Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``S`` VLM tokens (image placeholders +
 instruction), ``E`` LLM hidden size, ``H, W`` camera image size, ``I`` vision-tower image side.
@@ -29,6 +29,7 @@ instruction), ``E`` LLM hidden size, ``H, W`` camera image size, ``I`` vision-to
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -50,34 +51,42 @@ from transformers import (
 )
 from transformers.utils.constants import OPENAI_CLIP_MEAN, OPENAI_CLIP_STD
 
-from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS, TASK_NAMES, TRAINING_ANNOTATIONS
 from lerobot_subgoalvla.policies.subgoalvla.config_components import TinyLlavaDims
 
 PAD_TOKEN, UNK_TOKEN, IMAGE_TOKEN = "<pad>", "<unk>", "<image>"
+SPECIAL_TOKENS = (PAD_TOKEN, UNK_TOKEN, IMAGE_TOKEN)
 _DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}
 
 
 # ------------------------------------------------------------------------------------------------------------
 # Tokenizer
 # ------------------------------------------------------------------------------------------------------------
-def tiny_vocabulary() -> list[str]:
-    """The tiny tokenizer's words: specials, then every word of CALVIN's instructions and task names, sorted.
-
-    Covers the 389 training annotations (what the training windows carry) and the evaluation instructions
-    (what the benchmark asks), so no CALVIN instruction has an unknown word. Deterministic (depends only on
-    ``calvin_vocab``), so a saved pipeline rebuilds the identical tokenizer.
+def vocabulary_words(instructions: Iterable[str]) -> tuple[str, ...]:
+    """The sorted distinct words of ``instructions`` as the tiny tokenizer splits them (lower-cased,
+    whitespace and punctuation): the vocabulary a tiny backbone is built with (``BackboneConfig.vocabulary``).
     """
     splitter = pre_tokenizers.Whitespace()
     words: set[str] = set()
-    training = (text for annotations in TRAINING_ANNOTATIONS.values() for text in annotations)
-    for text in (*EVAL_INSTRUCTIONS.values(), *training, *(name.replace("_", " ") for name in TASK_NAMES)):
+    for text in instructions:
         words.update(word for word, _ in splitter.pre_tokenize_str(text.lower()))
-    return [PAD_TOKEN, UNK_TOKEN, IMAGE_TOKEN, *sorted(words)]
+    return tuple(sorted(words - set(SPECIAL_TOKENS)))
 
 
-def build_tiny_tokenizer() -> PreTrainedTokenizerFast:
-    """Offline word-level tokenizer (lower-cased, whitespace/punctuation split) over ``tiny_vocabulary()``."""
-    vocab = {word: index for index, word in enumerate(tiny_vocabulary())}
+def unknown_words(instructions: Iterable[str], vocabulary: Iterable[str]) -> list[str]:
+    """The words of ``instructions`` the tiny tokenizer would map to ``<unk>``, sorted."""
+    return sorted(set(vocabulary_words(instructions)) - set(vocabulary))
+
+
+def tiny_vocabulary(words: Sequence[str]) -> list[str]:
+    """The tiny tokenizer's tokens: the specials, then ``words`` (deterministic: a saved pipeline rebuilds the
+    identical tokenizer from the words stored in its config)."""
+    return [*SPECIAL_TOKENS, *words]
+
+
+def build_tiny_tokenizer(words: Sequence[str]) -> PreTrainedTokenizerFast:
+    """Offline word-level tokenizer (lower-cased, whitespace/punctuation split) over
+    ``tiny_vocabulary(words)``."""
+    vocab = {word: index for index, word in enumerate(tiny_vocabulary(words))}
     backend = Tokenizer(models.WordLevel(vocab=vocab, unk_token=UNK_TOKEN))
     backend.normalizer = normalizers.Lowercase()
     backend.pre_tokenizer = pre_tokenizers.Whitespace()
@@ -90,11 +99,11 @@ def build_tiny_tokenizer() -> PreTrainedTokenizerFast:
     )
 
 
-def load_tokenizer(name_or_path: str | None) -> PreTrainedTokenizerBase:
-    """The backbone's tokenizer: the checkpoint's own, or the tiny offline one when ``name_or_path`` is
-    None."""
+def load_tokenizer(name_or_path: str | None, tiny: TinyLlavaDims | None = None) -> PreTrainedTokenizerBase:
+    """The backbone's tokenizer: the checkpoint's own, or the tiny offline one (over ``tiny.vocabulary``) when
+    ``name_or_path`` is None."""
     if name_or_path is None:
-        return build_tiny_tokenizer()
+        return build_tiny_tokenizer(_required_tiny(tiny).vocabulary)
     tokenizer = AutoTokenizer.from_pretrained(name_or_path)
     tokenizer.padding_side = "right"
     return tokenizer
@@ -106,7 +115,7 @@ def load_tokenizer(name_or_path: str | None) -> PreTrainedTokenizerBase:
 def build_tiny_llava_config(dims: TinyLlavaDims) -> LlavaConfig:
     """A LLaVA-1.5-architecture config (CLIP vision tower, 2-layer GELU projector, LLaMA) at tiny
     dimensions."""
-    vocab = tiny_vocabulary()
+    vocab = tiny_vocabulary(dims.vocabulary)
     vision = CLIPVisionConfig(
         hidden_size=dims.vision_hidden_size,
         intermediate_size=4 * dims.vision_hidden_size,
@@ -232,35 +241,41 @@ def tokenize_instructions(
 
 
 def prepare_pixel_values(
-    static: Tensor,
-    gripper: Tensor,
+    views: Sequence[Tensor],
     image_size: int,
     image_mean: tuple[float, ...],
     image_std: tuple[float, ...],
 ) -> Tensor:
-    """Both cameras side by side, resized to the vision tower's square input, normalised (paper appendix A).
+    """The cameras side by side in one square image for the vision tower, normalised (paper appendix A).
 
-    Appendix A says the concatenated views are resized to 334 x 334, but CLIP ViT-L/14-336 (LLaVA-1.5) takes
-    336 x 336 (24 x 24 patches of 14 px; 334 is not a multiple of 14), so we use the vision tower's own
-    ``image_size`` (336 for the paper preset, 384 for SigLIP in the small preset). Each view is resized to
-    (R, R/2) (left: static, right: gripper), which equals concatenating and then resizing to R x R.
+    The paper concatenates CALVIN's two views and resizes the result to the tower's square input; with K
+    cameras view k is resized to the k-th vertical strip of an R x R image (R x R/K, left to right in the
+    given order), which equals concatenating and then resizing. One camera fills the square; CALVIN's two are
+    the paper's layout. Appendix A says 334 x 334, but CLIP ViT-L/14-336 (LLaVA-1.5) takes 336 (334 is not a
+    multiple of 14), so R is the vision tower's own ``image_size`` (336 paper, 384 SigLIP in ``small``).
 
     Args:
-        static: (B, 3, Hs, Ws) static camera in [0, 1].
-        gripper: (B, 3, Hg, Wg) gripper camera in [0, 1].
+        views: K >= 1 camera images (B, 3, H_k, W_k) in [0, 1], in the policy's camera order.
         image_size: R.
         image_mean, image_std: 3 channel statistics of the vision tower.
 
     Returns:
         (B, 3, I, I) normalised pixel values.
     """
-    left = image_size // 2
-    sizes = ((image_size, left), (image_size, image_size - left))
-    views = [
-        F.interpolate(view.float(), size=size, mode="bilinear", align_corners=False, antialias=True)
-        for view, size in zip((static, gripper), sizes, strict=True)
+    if not views:
+        raise ValueError("prepare_pixel_values needs at least one camera image")
+    bounds = [image_size * k // len(views) for k in range(len(views) + 1)]  # strip edges, left to right
+    strips = [
+        F.interpolate(
+            view.float(),
+            size=(image_size, right - left),
+            mode="bilinear",
+            align_corners=False,
+            antialias=True,
+        )
+        for view, left, right in zip(views, bounds[:-1], bounds[1:], strict=True)
     ]
-    pixels = torch.cat(views, dim=-1)  # (B, 3, I, I)
+    pixels = torch.cat(strips, dim=-1)  # (B, 3, I, I)
     mean = torch.tensor(image_mean, device=pixels.device).view(1, 3, 1, 1)
     std = torch.tensor(image_std, device=pixels.device).view(1, 3, 1, 1)
     return (pixels - mean) / std
@@ -367,10 +382,10 @@ class VLMBackbone(nn.Module):
         """Dtype of the backbone weights."""
         return self.vlm.language_model.get_input_embeddings().weight.dtype
 
-    def prepare_pixel_values(self, static: Tensor, gripper: Tensor) -> Tensor:
+    def prepare_pixel_values(self, views: Sequence[Tensor]) -> Tensor:
         """``prepare_pixel_values`` with this backbone's image size and statistics. Returns (B, 3, I, I)."""
         spec = self.input_spec
-        return prepare_pixel_values(static, gripper, spec.image_size, spec.image_mean, spec.image_std)
+        return prepare_pixel_values(views, spec.image_size, spec.image_mean, spec.image_std)
 
     def forward(
         self, input_ids: Tensor, attention_mask: Tensor, pixel_values: Tensor

@@ -45,6 +45,7 @@ class TinyLlavaDims:
     vision_num_heads: int
     image_size: int
     patch_size: int
+    vocabulary: tuple[str, ...]
 
 
 @dataclass
@@ -83,6 +84,9 @@ class BackboneConfig:
     image_size: int | None = None
     # tiny vision-encoder patch size (image_size must be a multiple of it).
     patch_size: int | None = None
+    # words of the tiny tokenizer; lerobot-train fills it from the training dataset's tasks and the
+    # instructions its metadata lists, and it is saved with the checkpoint (leave unset).
+    vocabulary: list[str] | None = None
     # Tokenisation and precision.
     # instructions are padded/truncated to this many tokens by the preprocessor.
     max_instruction_tokens: int | None = None
@@ -99,7 +103,13 @@ class BackboneConfig:
         """The tiny LLaVA's dimensions; None for a pretrained backbone (``name_or_path`` set)."""
         if self.name_or_path is not None:
             return None
-        return TinyLlavaDims(**{name: getattr(self, name) for name in self.tiny_architecture_fields})
+        values = {name: getattr(self, name) for name in self.tiny_architecture_fields}
+        if values["vocabulary"] is None:
+            raise ConfigError(
+                "--policy.backbone.vocabulary is unset: a tiny backbone takes its words from the training "
+                "dataset (build the policy with lerobot-train / make_policy(cfg, ds_meta=...)) or this flag"
+            )
+        return TinyLlavaDims(**{**values, "vocabulary": tuple(values["vocabulary"])})
 
 
 @dataclass

@@ -28,15 +28,12 @@ chunk, the guidance scales) the config follows the more specific statement; docs
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
-from typing import Any
 
 from lerobot.configs import NormalizationMode, PolicyFeature, PreTrainedConfig
 from lerobot.optim import AdamWConfig
-from lerobot.utils.constants import ACTION, OBS_STATE
 
-from lerobot_subgoalvla.config_error import ConfigError, DatasetContractError
+from lerobot_subgoalvla.config_error import ConfigError
 from lerobot_subgoalvla.policies.subgoalvla.config_components import (
     PRESET_VALUES,
     BackboneConfig,
@@ -45,17 +42,8 @@ from lerobot_subgoalvla.policies.subgoalvla.config_components import (
     require_choice,
     require_positive,
 )
+from lerobot_subgoalvla.policies.subgoalvla.dataset_features import DatasetFitting
 from lerobot_subgoalvla.policies.subgoalvla.schedule import TwoStageCosineSchedulerConfig
-
-# Batch keys of the data contract: the converter writes them, the env provides cameras and state.
-STATIC_CAMERA_KEY = "observation.images.static"
-GRIPPER_CAMERA_KEY = "observation.images.gripper"
-STATE_HISTORY_KEY = "observation.state_history"
-SUBGOAL_TRACE_KEY = "observation.subgoal_trace"
-STATE_KEY = OBS_STATE
-ACTION_KEY = ACTION
-#: The command that writes every key above from CALVIN's native files.
-CONVERTER_COMMAND = "subgoalvla-convert-calvin <CALVIN_DIR> --repo-id <id>"
 
 PRESETS = ("tiny", "laptop", "small", "paper")
 FEATURE_AGGREGATIONS = ("proprio_xattn", "mean", "max", "attn")
@@ -67,10 +55,11 @@ TORCH_DTYPES = ("float32", "bfloat16", "float16")
 
 @PreTrainedConfig.register_subclass("subgoalvla")
 @dataclass
-class SubgoalVLAConfig(PreTrainedConfig):
+class SubgoalVLAConfig(DatasetFitting, PreTrainedConfig):
     """SubgoalVLA: VLM backbone -> proprioceptive cross-attention -> DiT planner -> DiT action generator.
 
-    Each field's help is the comment above it: ``--help`` shows it.
+    How it fits a dataset or env (cameras, state, window, angles) is ``DatasetFitting``'s
+    (``dataset_features.py``). Each field's help is the comment above it: ``--help`` shows it.
     """
 
     # LeRobot's: observation steps per sample; SubgoalVLA reads one frame (its history is a dataset column).
@@ -94,11 +83,20 @@ class SubgoalVLAConfig(PreTrainedConfig):
     # DiT action generator phi (appendix B.2).
     generator: DiTHeadConfig = field(default_factory=DiTHeadConfig)
 
+    # cameras the policy reads, in this order (their views sit side by side, left to right, in the vision
+    # tower's square image); unset: every camera of the dataset, in the order of its features.
+    camera_keys: list[str] | None = None
     # h, proprioceptive states in S_t (15, tables 6-7); must match the dataset's `observation.state_history`.
     state_history_len: int = 15
     # M, trace steps the planner predicts (8, appendix A); 1 is the "w/o ST" ablation (the first trace step
     # only). The dataset's trace must have at least this many steps.
     subgoal_trace_len: int = 8
+    # frames between consecutive history (and trace) states; unset: the dataset's window (1 without one).
+    # The policy rebuilds its history at inference with it.
+    state_stride: int | None = None
+    # frames from t to the first trace state; unset: the dataset's window. A value that differs from the
+    # dataset's is refused (the trace columns were cut with the dataset's).
+    subgoal_trace_start: int | None = None
     # N, actions predicted per chunk (15, table 7).
     chunk_size: int = 15
     # actions executed from each predicted chunk before predicting the next one.
@@ -145,11 +143,12 @@ class SubgoalVLAConfig(PreTrainedConfig):
     # training precision read by `lerobot-train`: `bfloat16` = accelerate bf16 mixed precision (float32
     # weights, bf16 autocast), `float32` = full precision.
     dtype: str | None = None
-    # indices of the wrapping TCP Euler angles in `observation.state` (CALVIN: 3, 4, 5).
-    state_angle_dims: tuple[int, ...] = (3, 4, 5)
-    # the orientation those angles are measured from, radians (CALVIN's gripper pointing down: roll pi); the
-    # model sees `wrap(angle - home)`, continuous wherever the arm goes.
-    state_angle_home: tuple[float, ...] = (math.pi, 0.0, 0.0)
+    # indices of wrapping angles in `observation.state` (CALVIN's converter records 3, 4, 5); unset: the
+    # dataset's metadata, or none. `[]` switches a dataset's angles off. Other dims are z-scored.
+    state_angle_dims: tuple[int, ...] | None = None
+    # the orientation those angles are measured from, radians, one per angle dim (CALVIN: pi, 0, 0); the
+    # model sees `wrap(angle - home)`, continuous wherever the arm goes. Unset: the dataset's.
+    state_angle_home: tuple[float, ...] | None = None
     # radians per normalised unit of those angles.
     state_angle_scale: float = 1.0
 
@@ -200,11 +199,21 @@ class SubgoalVLAConfig(PreTrainedConfig):
                 "--policy.normalization_mapping must keep STATE: IDENTITY; SubgoalVLA normalises the "
                 "proprioception itself (state statistics, continuous angles)"
             )
-        if len(self.state_angle_dims) != len(self.state_angle_home):
+        if (self.state_angle_dims is None) != (self.state_angle_home is None) or len(
+            self.state_angle_dims or ()
+        ) != len(self.state_angle_home or ()):
             raise ConfigError(
                 f"--policy.state_angle_home needs one value per --policy.state_angle_dims entry "
-                f"({len(self.state_angle_dims)}), got {len(self.state_angle_home)}"
+                f"(dims {self.state_angle_dims}, home {self.state_angle_home})"
             )
+        if self.state_angle_dims is not None and any(d < 0 for d in self.state_angle_dims):
+            raise ConfigError(f"--policy.state_angle_dims must be >= 0, got {list(self.state_angle_dims)}")
+        for name in ("state_stride", "subgoal_trace_start"):
+            value = getattr(self, name)
+            if value is not None and value < (1 if name == "state_stride" else 0):
+                raise ConfigError(f"--policy.{name} must be >= {int(name == 'state_stride')}, got {value}")
+        if self.camera_keys is not None and not self.camera_keys:
+            raise ConfigError("--policy.camera_keys must name at least one camera, or be left unset for all")
         require_positive("state_angle_scale", self.state_angle_scale)
         for name in ("state_history_len", "subgoal_trace_len", "chunk_size", "n_action_steps"):
             require_positive(name, getattr(self, name))
@@ -242,6 +251,8 @@ class SubgoalVLAConfig(PreTrainedConfig):
         bb = self.backbone
         if bb.name_or_path is None:
             for name in bb.tiny_architecture_fields:
+                if name == "vocabulary":
+                    continue  # filled from the training dataset when the policy is built
                 require_positive(f"backbone.{name}", getattr(bb, name))
             if bb.image_size % bb.patch_size != 0:
                 raise ConfigError(
@@ -269,84 +280,6 @@ class SubgoalVLAConfig(PreTrainedConfig):
                 )
             if bb.layer is not None and bb.layer < 1:
                 raise ConfigError(f"--policy.backbone.layer must be >= 1, got {bb.layer}")
-
-    # Features -----------------------------------------------------------------------------------------------
-    def validate_features(self) -> None:
-        """Check the features every run needs: the two cameras, the state and the action.
-
-        The subgoal trace and the state history are only needed for training; they are checked against the
-        dataset by :meth:`validate_dataset_features` (the env provides state + cameras only, and the policy
-        builds the history itself at inference).
-        """
-        inputs = self.input_features or {}
-        for key in (STATE_KEY, STATIC_CAMERA_KEY, GRIPPER_CAMERA_KEY):
-            if key not in inputs:
-                raise DatasetContractError(self.missing_feature_message(key))
-        state_dim = inputs[STATE_KEY].shape[-1]
-        for key, length in ((STATE_HISTORY_KEY, self.state_history_len), (SUBGOAL_TRACE_KEY, None)):
-            if key in inputs:
-                self._check_sequence_shape(key, tuple(inputs[key].shape), state_dim, length)
-        if self.action_feature is None:
-            raise DatasetContractError(self.missing_feature_message(ACTION_KEY))
-
-    def validate_dataset_features(self, features: dict[str, dict[str, Any]]) -> None:
-        """Check a training dataset's features (``LeRobotDatasetMetadata.features``) against the data
-        contract.
-
-        Raises:
-            DatasetContractError: one line naming the missing/mis-shaped feature and the converter that
-                writes it.
-        """
-        for key in (
-            STATE_KEY,
-            STATIC_CAMERA_KEY,
-            GRIPPER_CAMERA_KEY,
-            STATE_HISTORY_KEY,
-            SUBGOAL_TRACE_KEY,
-            ACTION_KEY,
-        ):
-            if key not in features:
-                raise DatasetContractError(self.missing_feature_message(key))
-        state_dim = tuple(features[STATE_KEY]["shape"])[-1]
-        self._check_sequence_shape(
-            STATE_HISTORY_KEY, tuple(features[STATE_HISTORY_KEY]["shape"]), state_dim, self.state_history_len
-        )
-        self._check_sequence_shape(
-            SUBGOAL_TRACE_KEY, tuple(features[SUBGOAL_TRACE_KEY]["shape"]), state_dim, None
-        )
-
-    def set_dataset_feature_metadata(self, features: dict[str, dict[str, Any]]) -> None:
-        """LeRobot hook: ``make_policy`` calls it with the training dataset's features before building the
-        policy."""
-        self.validate_dataset_features(features)
-
-    def _check_sequence_shape(
-        self, key: str, shape: tuple[int, ...], state_dim: int, length: int | None
-    ) -> None:
-        if len(shape) != 2 or shape[1] != state_dim:
-            raise DatasetContractError(
-                f"dataset feature {key!r} has shape {shape}, expected (steps, {state_dim}); "
-                f"re-create it with `{CONVERTER_COMMAND}`"
-            )
-        if length is not None and shape[0] != length:
-            raise DatasetContractError(
-                f"dataset feature {key!r} has {shape[0]} steps but --policy.state_history_len={length}; "
-                f"set the flag to {shape[0]} or convert with a matching history length"
-            )
-        if key == SUBGOAL_TRACE_KEY and shape[0] < self.subgoal_trace_len:
-            raise DatasetContractError(
-                f"dataset feature {key!r} has {shape[0]} steps but "
-                f"--policy.subgoal_trace_len={self.subgoal_trace_len}; "
-                f"lower the flag or convert with a longer trace"
-            )
-
-    @staticmethod
-    def missing_feature_message(key: str) -> str:
-        """The one-line error for a dataset/env that lacks ``key``."""
-        return (
-            f"SubgoalVLA needs the feature {key!r}, which the dataset/env does not provide; "
-            f"create the dataset with `{CONVERTER_COMMAND}`"
-        )
 
     # LeRobot contract
     # -----------------------------------------------------------------------------------------

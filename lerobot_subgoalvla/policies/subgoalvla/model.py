@@ -16,7 +16,8 @@ heads keep training. Ablations are configuration: ``feature_aggregation`` (table
 ``subgoal_trace_len=1`` ("w/o ST") keeps only the first trace step.
 
 The batch is already normalised by the processor (state, history and trace share the state statistics; actions
-use their own). Cameras arrive in [0, 1] and are resized/normalised here for the vision tower (on the device).
+use their own). Cameras (any number, in the config's order) arrive in [0, 1] and are laid side by side,
+resized and normalised here for the vision tower (on the device).
 
 Dimension legend: ``B`` batch, ``h`` history steps, ``M`` trace steps, ``p`` proprio dim, ``N`` chunk size,
 ``A`` action dim, ``S`` VLM tokens, ``E`` VLM hidden size (= cross-attention width); the package's legend
@@ -33,14 +34,15 @@ from lerobot.configs import FeatureType, NormalizationMode
 from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
 from torch import Tensor, nn
 
-from lerobot_subgoalvla.policies.subgoalvla.backbone import VLMBackbone
-from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
+from lerobot_subgoalvla.contract.keys import (
+    ACTION_IS_PAD_KEY,
     ACTION_KEY,
-    GRIPPER_CAMERA_KEY,
     STATE_HISTORY_KEY,
     STATE_KEY,
-    STATIC_CAMERA_KEY,
     SUBGOAL_TRACE_KEY,
+)
+from lerobot_subgoalvla.policies.subgoalvla.backbone import VLMBackbone
+from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
     CrossAttentionConfig,
     DiTHeadConfig,
     SubgoalVLAConfig,
@@ -48,8 +50,6 @@ from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
 from lerobot_subgoalvla.policies.subgoalvla.diffusion import DiffusionObjective
 from lerobot_subgoalvla.policies.subgoalvla.dit import DiT
 from lerobot_subgoalvla.policies.subgoalvla.proprio_attention import build_aggregator
-
-ACTION_IS_PAD_KEY = "action_is_pad"
 
 
 def _objective(head: DiTHeadConfig, target_normalization: NormalizationMode) -> DiffusionObjective:
@@ -111,6 +111,7 @@ class SubgoalVLAModel(nn.Module):
                 bb.name_or_path, bb.layer, bb.freeze_vision_tower, bb.tiny_dims(), bb.torch_dtype
             )
         self.backbone = backbone
+        self.camera_keys = config.image_features_in_order  # the views' left-to-right order is learned
         self.state_dim = config.input_features[STATE_KEY].shape[-1]
         self.action_dim = config.action_feature.shape[-1]
         width = self.backbone.hidden_size  # PCA works in the vision-language space (paper 4.1, table 5)
@@ -150,14 +151,13 @@ class SubgoalVLAModel(nn.Module):
         """Run the backbone once: layer-k states of image + instruction tokens.
 
         Args:
-            batch: ``observation.images.static`` (B, 3, H, W) and ``observation.images.gripper`` (B, 3, h, w)
-                in [0, 1]; ``observation.language.tokens`` (B, S); ``observation.language.attention_mask`` (B,
-                S).
+            batch: the policy's cameras (B, 3, H_k, W_k) in [0, 1] (``config.image_features_in_order``),
+                ``observation.language.tokens`` (B, S) and ``observation.language.attention_mask`` (B, S).
 
         Returns:
             hidden (B, S, E) float32 and mask (B, S) bool (True = valid).
         """
-        pixels = self.backbone.prepare_pixel_values(batch[STATIC_CAMERA_KEY], batch[GRIPPER_CAMERA_KEY])
+        pixels = self.backbone.prepare_pixel_values([batch[key] for key in self.camera_keys])
         hidden, mask = self.backbone(batch[OBS_LANGUAGE_TOKENS], batch[OBS_LANGUAGE_ATTENTION_MASK], pixels)
         return hidden.float(), mask  # heads run in float32 whatever the backbone dtype
 

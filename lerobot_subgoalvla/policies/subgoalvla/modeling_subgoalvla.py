@@ -10,11 +10,12 @@ The policy is thin: the computation lives in ``model.py``; this module does the 
   no group. LeRobot only uses these groups through the policy's optimizer preset (plugin guide 2.7). The heads
   come first because LeRobot logs ``param_groups[0]``'s learning rate, which is then the scheduler's peak.
 - Inference (``select_action``): the state history the model needs is built online from the normalised states
-  with :class:`StateHistoryBuffer` (the same clamping as the dataset's ``observation.state_history``). The
+  with :class:`StateHistoryBuffer` (the same window and clamping as the dataset's
+  ``observation.state_history``). The
   backbone and both samplers run once per chunk; ``n_action_steps`` actions are queued. CALVIN resets the
   model at every subtask, but ``lerobot-eval`` calls ``reset()`` once per rollout, so a change of
   ``batch["task"]`` (the env switches the instruction at each subtask) flushes the queue and restarts the
-  history of the envs whose instruction changed (plugin guide pitfall 15).
+  history of the envs whose instruction changed.
 - Visualisation: the trace planned with the latest chunk is kept in ``last_subgoal_trace`` (B, M, p),
   normalised (None without a planner or before the first chunk; cleared by ``reset()``), so a rollout can draw
   it as ghost robots (paper figure 7, ``subgoalvla-render-traces``) without a second model pass.
@@ -41,18 +42,14 @@ from lerobot.policies import PreTrainedPolicy
 from torch import Tensor
 
 from lerobot_subgoalvla.config_error import DatasetContractError
-from lerobot_subgoalvla.datasets_conversion.subgoal_traces import StateHistoryBuffer
-from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
-    STATE_HISTORY_KEY,
-    STATE_KEY,
-    SUBGOAL_TRACE_KEY,
-    SubgoalVLAConfig,
-)
+from lerobot_subgoalvla.contract.keys import STATE_HISTORY_KEY, STATE_KEY, SUBGOAL_TRACE_KEY, TASK_KEY
+from lerobot_subgoalvla.policies.subgoalvla.backbone import vocabulary_words
+from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
+from lerobot_subgoalvla.policies.subgoalvla.dataset_features import ADD_TRACES_COMMAND, dataset_instructions
 from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
+from lerobot_subgoalvla.policies.subgoalvla.state_history import StateHistoryBuffer
 
 logger = logging.getLogger(__name__)
-
-TASK_KEY = "task"
 
 
 def _require_online(action: str, alternative: str) -> None:
@@ -75,9 +72,10 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
 
     Args:
         config: the policy config; ``validate_features`` is checked here (LeRobot does not call it).
-        dataset_meta: the training dataset's metadata when LeRobot builds the policy from a dataset; its
+        dataset_meta: the training dataset's metadata when LeRobot builds the policy from a dataset: its
             features are checked against the data contract (trace and history are needed for training only),
-            and a run that would end by pushing to the Hub fails now when the Hub is offline.
+            a tiny backbone takes its vocabulary from its tasks, and a run that would end by pushing to the
+            Hub fails now when the Hub is offline.
         **kwargs: the rest of LeRobot's factory arguments (``dataset_stats``): normalisation is the
             processor's job, so the policy does not use them.
     """
@@ -89,7 +87,9 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         super().__init__(config)
         config.validate_features()
         if dataset_meta is not None:
-            config.validate_dataset_features(dataset_meta.features)
+            config.set_dataset_feature_metadata(dataset_meta.features)
+            if config.backbone.name_or_path is None and config.backbone.vocabulary is None:
+                config.backbone.vocabulary = list(vocabulary_words(dataset_instructions(dataset_meta)))
             if config.push_to_hub and config.repo_id:  # fail before training, not after it
                 _require_online(
                     f"--policy.push_to_hub=true (to {config.repo_id!r})",
@@ -103,7 +103,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         # global RNG and saved with the weights: each step's draws then depend on (seed, step) alone, so a
         # `--resume=true` run equals an uninterrupted one (see `_step_rng`).
         self.register_buffer("training_seed", torch.randint(0, 2**31, (), dtype=torch.long))
-        self._history = StateHistoryBuffer(config.state_history_len)
+        self._history = StateHistoryBuffer(config.state_history_len, config.state_stride or 1)
         self._queue: deque[Tensor] = deque(maxlen=config.n_action_steps)
         self._image_sizes_checked = False
         self.reset()
@@ -134,9 +134,11 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         Returns:
             The loss and numbers to log: ``planner_loss``, ``generator_loss``, ``stage`` (1 or 2).
         """
-        for key in (STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY):
-            if key not in batch:
-                raise DatasetContractError(self.config.missing_feature_message(key))
+        missing = [key for key in (STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY) if key not in batch]
+        if missing:
+            raise DatasetContractError(
+                f"SubgoalVLA trains on {missing}, which the batch lacks; add them with `{ADD_TRACES_COMMAND}`"
+            )
         stage = self.stage
         with self._step_rng():
             losses = self.model.compute_losses(batch, stage)
@@ -263,7 +265,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
                 if trained != seen:
                     logger.warning(
                         "%s is %dx%d but the policy was trained on %dx%d images; evaluate with the training "
-                        "sizes (e.g. --env.static_image_size / --env.gripper_image_size)",
+                        "sizes (the env's image-size flags)",
                         key, *seen, *trained,
                     )  # fmt: skip
 

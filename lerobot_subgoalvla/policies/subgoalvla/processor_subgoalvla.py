@@ -17,13 +17,14 @@ The instruction (``task``) is tokenised here with the backbone's tokenizer, LLaV
 first); the step stores only the backbone name / tiny dimensions, so a saved pipeline rebuilds it offline for
 the tiny model.
 
-Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``p`` proprio dim (15), ``h`` history steps,
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``p`` proprio dim, ``h`` history steps,
 ``M`` trace steps, ``S`` VLM tokens.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,9 +41,12 @@ from lerobot.processor import (
 )
 from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
 
+from lerobot_subgoalvla.contract.keys import STATE_KEY, TASK_KEY
 from lerobot_subgoalvla.policies.subgoalvla.config_components import TinyLlavaDims
-from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import STATE_KEY, SubgoalVLAConfig
+from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
 from lerobot_subgoalvla.policies.subgoalvla.proprio_normalization import ProprioNormalizerProcessorStep
+
+logger = logging.getLogger(__name__)
 
 
 @ProcessorStepRegistry.register(name="subgoalvla_tokenizer_processor")
@@ -57,15 +61,17 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
         name_or_path: the backbone checkpoint (its tokenizer and image-token facts); None = the tiny backbone.
         max_length: instruction tokens kept (``BackboneConfig.max_instruction_tokens``).
         tiny_dims: ``TinyLlavaDims`` fields of the tiny backbone (None for a pretrained one); they fix the
-            number of image placeholders.
+            number of image placeholders and the vocabulary (an instruction with words outside it logs one
+            warning naming them: they become ``<unk>``).
         task_key: complementary-data key holding the instruction(s).
     """
 
     name_or_path: str | None = None
     max_length: int = 32
-    tiny_dims: dict[str, int] | None = None
-    task_key: str = "task"
+    tiny_dims: dict[str, Any] | None = None
+    task_key: str = TASK_KEY
     _tokenizer: Any = field(default=None, init=False, repr=False)
+    _warned: set[str] = field(default_factory=set, init=False, repr=False)  # instructions already reported
     _spec: Any = field(default=None, init=False, repr=False)  # backbone.VLMInputSpec
     _tokenize: Any = field(default=None, init=False, repr=False)  # backbone.tokenize_instructions
 
@@ -82,8 +88,15 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
 
         self._tokenize = tokenize_instructions
 
-        tiny = TinyLlavaDims(**self.tiny_dims) if self.tiny_dims is not None else None
-        self._tokenizer = load_tokenizer(self.name_or_path)
+        tiny = None
+        if self.tiny_dims is not None:
+            if "vocabulary" not in self.tiny_dims:
+                raise ValueError(
+                    "this SubgoalVLA checkpoint was saved before tiny vocabularies were stored with it "
+                    "(lerobot-subgoalvla < 0.2); train it again with the current version"
+                )
+            tiny = TinyLlavaDims(**{**self.tiny_dims, "vocabulary": tuple(self.tiny_dims["vocabulary"])})
+        self._tokenizer = load_tokenizer(self.name_or_path, tiny)
         self._spec = VLMInputSpec.load(self.name_or_path, tiny)
 
     @property
@@ -103,10 +116,25 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
             f"SubgoalVLA needs the instruction in batch[{self.task_key!r}] (str or list[str]), got {task!r}"
         )
 
+    def _warn_on_unknown_words(self, instructions: list[str]) -> None:
+        """Log once per instruction the words a tiny vocabulary lacks (they become ``<unk>``)."""
+        from lerobot_subgoalvla.policies.subgoalvla.backbone import unknown_words
+
+        for text in set(instructions) - self._warned:
+            self._warned.add(text)
+            unknown = unknown_words([text], self.tiny_dims["vocabulary"])
+            if unknown:
+                logger.warning(
+                    "instruction %r has words the policy never saw in training: %s (they read as <unk>)",
+                    text,
+                    unknown,
+                )
+
     def observation(self, observation: RobotObservation) -> RobotObservation:
-        input_ids, attention_mask = self._tokenize(
-            self._tokenizer, self._instructions(), self.max_length, self._spec
-        )
+        instructions = self._instructions()
+        if self.tiny_dims is not None:
+            self._warn_on_unknown_words(instructions)
+        input_ids, attention_mask = self._tokenize(self._tokenizer, instructions, self.max_length, self._spec)
         device = next((v.device for v in observation.values() if isinstance(v, torch.Tensor)), None)
         observation = dict(observation)
         observation[OBS_LANGUAGE_TOKENS] = input_ids.to(device)  # (B, S)
@@ -133,7 +161,7 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
         return features
 
 
-def _tiny_dims_dict(config: SubgoalVLAConfig) -> dict[str, int] | None:
+def _tiny_dims_dict(config: SubgoalVLAConfig) -> dict[str, Any] | None:
     dims = config.backbone.tiny_dims()
     return None if dims is None else dataclasses.asdict(dims)
 
@@ -153,13 +181,13 @@ def make_subgoalvla_pre_post_processors(
         dataset_stats: the dataset's statistics; ``observation.state``'s normalise state, history and trace
             (``ProprioNormalizerProcessorStep``), the history/trace columns' own statistics are never used.
         dataset_meta: the training dataset's metadata, when LeRobot passes it: its features are checked
-            against the data contract (one-line error naming the missing feature and the converter).
+            against the data contract (one line naming the missing feature and the command that adds it).
 
     Returns:
         (preprocessor, postprocessor).
     """
     if dataset_meta is not None:
-        config.validate_dataset_features(dataset_meta.features)
+        config.set_dataset_feature_metadata(dataset_meta.features)
     steps = make_default_policy_processor_steps(config, dataset_stats)
     tokenizer = SubgoalVLATokenizerProcessorStep(
         name_or_path=config.backbone.name_or_path,
@@ -174,8 +202,8 @@ def make_subgoalvla_pre_post_processors(
             steps.to_device,
             ProprioNormalizerProcessorStep.from_stats(
                 (dataset_stats or {}).get(STATE_KEY),
-                config.state_angle_dims,
-                config.state_angle_home,
+                config.state_angle_dims or (),
+                config.state_angle_home or (),
                 config.state_angle_scale,
             ),
             steps.normalize,

@@ -6,7 +6,9 @@ Why one step of our own instead of LeRobot's ``normalizer_processor``:
   ``observation.state`` vectors. The policy builds the history at inference from normalised states and the
   planner predicts a trace in the same space as its queries, so all three must be normalised with the
   *state's* statistics. LeRobot's normaliser gives each column its own pooled statistics instead.
-- CALVIN's TCP orientation (``robot_obs[3:6]``, XYZ Euler angles) lives in (-pi, pi]. With the gripper
+- Wrapping angles, where the dataset's metadata (or ``--policy.state_angle_dims``) declares them; a dataset
+  without them is z-scored plainly. CALVIN's TCP orientation (``robot_obs[3:6]``, XYZ Euler angles) lives in
+  (-pi, pi]. With the gripper
   pointing down the roll sits at +-pi, so a tiny real rotation wraps from +3.14 to -3.14 (48 wraps in 1726
   frames of the demo's data). Mean/std statistics of such a column are meaningless (std 2.2 rad) and a z-score
   turns the wrap into a jump of several standard deviations that the planner would have to predict 14-21 steps
@@ -20,7 +22,7 @@ leave ``STATE`` features alone (``IDENTITY`` in the policy's normalisation mappi
 and no ``lerobot-train --policy.path`` statistics override can normalise a proprioceptive tensor twice or with
 other numbers. :meth:`ProprioNormalizerProcessorStep.decode` inverts it (ghost-robot rendering of traces).
 
-Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``p`` proprio dim (15 for CALVIN), ``h``
+Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``p`` proprio dim, ``h``
 history steps, ``M`` trace steps.
 """
 
@@ -36,11 +38,7 @@ from lerobot.lerobot_types import RobotObservation
 from lerobot.processor import ObservationProcessorStep, ProcessorStepRegistry
 from torch import Tensor
 
-from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
-    STATE_HISTORY_KEY,
-    STATE_KEY,
-    SUBGOAL_TRACE_KEY,
-)
+from lerobot_subgoalvla.contract.keys import STATE_HISTORY_KEY, STATE_KEY, SUBGOAL_TRACE_KEY
 
 #: Proprioceptive tensors normalised by the step: (B, p), (B, h, p), (B, M, p).
 PROPRIO_KEYS = (STATE_KEY, STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY)
