@@ -17,7 +17,6 @@ task (``<task>/eval_info.json``) and ``lh_mtlc/results.jsonl`` from ``--env.resu
 
 from __future__ import annotations
 
-import argparse
 import io
 import json
 import logging
@@ -30,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
-from lerobot_subgoalvla.cli_errors import user_errors
+from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, user_errors
 
 logger = logging.getLogger(__name__)
 
@@ -255,18 +254,17 @@ def build_report(train_log: Path | None, eval_dir: Path, output_dir: Path) -> di
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``subgoalvla-demo-report``."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    parser = argparse.ArgumentParser(prog="subgoalvla-demo-report", description=__doc__.splitlines()[0])
+    parser = OneLineArgumentParser(prog="subgoalvla-demo-report", description=__doc__.splitlines()[0])
     parser.add_argument("--train-log", type=Path, default=None, help="captured output of lerobot-train")
     parser.add_argument(
         "--eval-dir", type=Path, required=True, help="folder of <task>/eval_info.json and lh_mtlc/"
     )
     parser.add_argument("--output-dir", type=Path, required=True, help="where README.md and the PNGs go")
-    args = parser.parse_args(argv)
-    for flag, path in (("--train-log", args.train_log), ("--eval-dir", args.eval_dir)):
-        if path is not None and not path.exists():
-            logger.error("%s %s does not exist; run the earlier demo stages first", flag, path)
-            return 1
     with user_errors(logger):
+        args = parser.parse_args(argv)
+        for flag, path in (("--train-log", args.train_log), ("--eval-dir", args.eval_dir)):
+            if path is not None and not path.exists():
+                raise FileNotFoundError(f"{flag} {path} does not exist; run the earlier demo stages first")
         summary = build_report(args.train_log, args.eval_dir, args.output_dir)
     mean = summary["mean_task_success"]
     chains = summary["lh_mtlc"]

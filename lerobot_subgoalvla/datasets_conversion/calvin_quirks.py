@@ -6,7 +6,7 @@ Decisions (documented in docs/data.md):
   order: A = pink, blue, red; B, D = red, blue, pink; C = blue, red, pink (spec 1.5). The converter
   *canonicalises* every frame to red, blue, pink (the evaluation scene D's order,
   ``calvin_vocab.BLOCK_COLORS``) so that ``observation.environment_state`` means the same thing in every
-  scene, and records the choice in ``meta/info.json["subgoalvla"]["block_order"]``.
+  scene, and records the choice in the trace feature's metadata (``block_order``).
 * **Language windows.** ``info.indx`` ends are inclusive (spec 1.7). A window belongs to the segment
   (row of ``ep_start_end_ids``) containing its start; an end beyond that segment is clamped to the segment's
   last frame (windows never cross rows, spec 1.2). A window whose start lies in no segment (stray ids) or

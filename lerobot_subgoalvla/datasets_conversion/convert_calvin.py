@@ -60,8 +60,6 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-INFO_KEY = "subgoalvla"
-
 
 def select_episodes(split: CalvinSplit, mode: str, max_episodes: int | None = None) -> list[EpisodeSpec]:
     """LANG: one episode per language window; ALL: one per segment (calvin_quirks has the rules)."""
@@ -129,8 +127,11 @@ def _run_parts(jobs: list[PartJob], workers: int, total_frames: int, desc: str, 
                 progress.update(frames)
 
 
-def _finish(partial: Path, repo_id: str, jobs: list[PartJob], record: dict) -> Path:
-    """Merge the parts (``lerobot_parts.merge_parts``), record the options and write the dataset card."""
+def _finish(
+    partial: Path, repo_id: str, jobs: list[PartJob], record: dict, options: ConversionOptions
+) -> Path:
+    """Merge the parts (``lerobot_parts.merge_parts``), record the trace metadata in the trace feature
+    (``contract.metadata``: where LeRobot keeps it without a warning) and write the dataset card."""
     from lerobot.datasets import create_lerobot_dataset_card
     from lerobot.datasets.io_utils import load_info
 
@@ -138,7 +139,7 @@ def _finish(partial: Path, repo_id: str, jobs: list[PartJob], record: dict) -> P
     merge_parts([job.final_dir for job in jobs], repo_id, merged)
     info_path = merged / "meta" / "info.json"
     info = json.loads(info_path.read_text())
-    info[INFO_KEY] = record
+    info["features"] = options.trace_metadata(record["split"]).attach(info["features"])
     info_path.write_text(json.dumps(info, indent=4))
     card = create_lerobot_dataset_card(
         tags=["CALVIN", "SubgoalVLA", "subgoal-traces"],
@@ -146,7 +147,8 @@ def _finish(partial: Path, repo_id: str, jobs: list[PartJob], record: dict) -> P
         license="mit",
         url="http://calvin.cs.uni-freiburg.de",
         dataset_description=(
-            f"CALVIN ({record['source']}, split {record['split']}) converted by subgoalvla-convert-calvin in "
+            f"CALVIN ({Path(record['source']).parent.name}, split {record['split']}) converted by "
+            "subgoalvla-convert-calvin in "
             f"{record['mode'].upper()} mode: observation.state_history = "
             f"robot_obs[t-{record['history_length'] - 1}"
             f"..t], observation.subgoal_trace = robot_obs[t+{record['trace_start']}..t+"
@@ -206,7 +208,7 @@ def convert_split(
         for i in range(0, len(episodes), episodes_per_part)
     ]  # fmt: skip
     _run_parts(jobs, workers, sum(ep.length for ep in episodes), f"{split.name} ({options.mode})", quiet)
-    merged = _finish(partial, repo_id, jobs, record)
+    merged = _finish(partial, repo_id, jobs, record, options)
     if verify:  # before the rename: a dataset that fails verification never appears at ROOT
         from lerobot_subgoalvla.datasets_conversion.verify_dataset import verify_dataset
 

@@ -1,4 +1,4 @@
-"""Writing CALVIN episodes into LeRobotDataset v3 part-datasets (the data contract, team brief / DESIGN.md).
+"""Writing CALVIN episodes into LeRobotDataset v3 part-datasets (the data contract: ``contract/``).
 
 The converter shards its episode list into fixed-size *parts*; each part is a complete LeRobotDataset
 written with LeRobot's own protocol (``create`` -> ``add_frame`` -> ``save_episode`` -> ``finalize``) into
@@ -8,7 +8,7 @@ parallel worker processes; ``lerobot.datasets.aggregate_datasets`` then merges t
 
 Dimension legend:
     F    frames of one episode
-    L_h  history length, L_s trace length, P = 15 robot_obs dims
+    h    history states, M trace states, p = 15 robot_obs dims
 """
 
 from __future__ import annotations
@@ -24,7 +24,29 @@ from unittest import mock
 import numpy as np
 import pandas as pd
 
-from lerobot_subgoalvla.calvin_vocab import ACTION_NAMES, CALVIN_FPS, ROBOT_OBS_NAMES, SCENE_OBS_NAMES
+from lerobot_subgoalvla.calvin_vocab import (
+    ACTION_NAMES,
+    CALVIN_FPS,
+    EVAL_INSTRUCTIONS,
+    ROBOT_OBS_NAMES,
+    SCENE_OBS_NAMES,
+)
+from lerobot_subgoalvla.contract import calvin
+from lerobot_subgoalvla.contract.keys import (
+    ACTION_KEY,
+    ENV_STATE_KEY,
+    STATE_HISTORY_KEY,
+    STATE_KEY,
+    SUBGOAL_TRACE_KEY,
+    TASK_KEY,
+)
+from lerobot_subgoalvla.contract.metadata import ProprioMetadata
+from lerobot_subgoalvla.contract.window import (
+    PAPER_HISTORY_LENGTH,
+    PAPER_TRACE_LENGTH,
+    PAPER_TRACE_START,
+    TraceWindow,
+)
 from lerobot_subgoalvla.datasets_conversion.calvin_format import CalvinSplit
 from lerobot_subgoalvla.datasets_conversion.calvin_quirks import (
     CANONICAL_BLOCK_ORDER,
@@ -32,17 +54,11 @@ from lerobot_subgoalvla.datasets_conversion.calvin_quirks import (
     block_order_of,
     canonicalize_scene_obs,
 )
-from lerobot_subgoalvla.datasets_conversion.subgoal_traces import state_history, subgoal_traces
-
-STATIC_KEY = "observation.images.static"
-GRIPPER_KEY = "observation.images.gripper"
-FRAME_INDEX_KEY = "calvin_frame_index"
-ROBOT_TYPE = "franka_panda"
 
 
 @dataclass(frozen=True)
 class ConversionOptions:
-    """Options that change the written data; stored in ``meta/info.json["subgoalvla"]``.
+    """Options that change the written data; the trace metadata records them (``trace_metadata``).
 
     Args:
         trace_start: offset of the first subgoal-trace state (paper appendix A: 14).
@@ -52,9 +68,9 @@ class ConversionOptions:
         mode: ``lang`` (one episode per language window) or ``all`` (one per play segment).
     """
 
-    trace_start: int = 14
-    trace_length: int = 8
-    history_length: int = 15
+    trace_start: int = PAPER_TRACE_START
+    trace_length: int = PAPER_TRACE_LENGTH
+    history_length: int = PAPER_HISTORY_LENGTH
     image_format: Literal["video", "image"] = "video"
     mode: Literal["lang", "all"] = "lang"
 
@@ -70,8 +86,26 @@ class ConversionOptions:
             raise ValueError(f"--trace-start must be >= 0, got {self.trace_start}")
 
     def info(self) -> dict:
-        """The ``"subgoalvla"`` block of ``meta/info.json``."""
+        """The options as a JSON record (a resumed conversion must use the same)."""
         return {**asdict(self), "block_order": list(CANONICAL_BLOCK_ORDER), "source_fps": CALVIN_FPS}
+
+    @property
+    def window(self) -> TraceWindow:
+        """CALVIN's window: consecutive 30 Hz frames (stride 1)."""
+        return TraceWindow(self.history_length, self.trace_start, self.trace_length)
+
+    def trace_metadata(self, split: str) -> ProprioMetadata:
+        """What the trace feature records (``contract.metadata``): the window, CALVIN's angles, its evaluation
+        instructions (their phrasing differs from the training annotations) and the conversion options."""
+        return ProprioMetadata(
+            self.window,
+            CALVIN_FPS,
+            calvin.ANGLE_DIMS,
+            calvin.ANGLE_HOME,
+            tuple(EVAL_INSTRUCTIONS.values()),
+            "subgoalvla-convert-calvin",
+            {"split": split, "mode": self.mode, "block_order": list(CANONICAL_BLOCK_ORDER)},
+        )
 
 
 def build_features(
@@ -80,19 +114,16 @@ def build_features(
     """The LeRobot feature schema of the data contract (camera sizes are read from the source frames)."""
     image_dtype = options.image_format
     hwc = ["height", "width", "channels"]
+    state_dim = len(ROBOT_OBS_NAMES)
     return {
-        STATIC_KEY: {"dtype": image_dtype, "shape": tuple(static_shape), "names": hwc},
-        GRIPPER_KEY: {"dtype": image_dtype, "shape": tuple(gripper_shape), "names": hwc},
-        "observation.state": {"dtype": "float32", "shape": (15,), "names": list(ROBOT_OBS_NAMES)},
-        "observation.environment_state": {"dtype": "float32", "shape": (24,), "names": list(SCENE_OBS_NAMES)},
-        "observation.state_history": {
-            "dtype": "float32",
-            "shape": (options.history_length, 15),
-            "names": None,
-        },
-        "observation.subgoal_trace": {"dtype": "float32", "shape": (options.trace_length, 15), "names": None},
-        "action": {"dtype": "float32", "shape": (7,), "names": list(ACTION_NAMES)},
-        FRAME_INDEX_KEY: {"dtype": "int64", "shape": (1,), "names": None},
+        calvin.STATIC_CAMERA_KEY: {"dtype": image_dtype, "shape": tuple(static_shape), "names": hwc},
+        calvin.GRIPPER_CAMERA_KEY: {"dtype": image_dtype, "shape": tuple(gripper_shape), "names": hwc},
+        STATE_KEY: {"dtype": "float32", "shape": (state_dim,), "names": list(ROBOT_OBS_NAMES)},
+        ENV_STATE_KEY: {"dtype": "float32", "shape": (len(SCENE_OBS_NAMES),), "names": list(SCENE_OBS_NAMES)},
+        STATE_HISTORY_KEY: {"dtype": "float32", "shape": (options.history_length, state_dim), "names": None},
+        SUBGOAL_TRACE_KEY: {"dtype": "float32", "shape": (options.trace_length, state_dim), "names": None},
+        ACTION_KEY: {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
+        calvin.FRAME_INDEX_KEY: {"dtype": "int64", "shape": (1,), "names": None},
     }
 
 
@@ -112,23 +143,24 @@ def episode_arrays(
         mask = np.array([s == scene for s in scenes])
         scene_obs[mask] = canonicalize_scene_obs(raw["scene_obs"][mask], block_order_of(scene))
     robot_obs = raw["robot_obs"].astype(np.float32)  # (F, 15)
+    window = options.window
     return {
-        STATIC_KEY: raw["rgb_static"],
-        GRIPPER_KEY: raw["rgb_gripper"],
-        "observation.state": robot_obs,
-        "observation.environment_state": scene_obs.astype(np.float32),
-        "observation.state_history": state_history(robot_obs, options.history_length),  # (F, L_h, P)
-        "observation.subgoal_trace": subgoal_traces(robot_obs, options.trace_start, options.trace_length),
-        "action": raw["rel_actions"].astype(np.float32),
-        FRAME_INDEX_KEY: frame_ids.astype(np.int64)[:, None],  # (F, 1)
-        "task": np.array(episode.tasks, dtype=object),
+        calvin.STATIC_CAMERA_KEY: raw["rgb_static"],
+        calvin.GRIPPER_CAMERA_KEY: raw["rgb_gripper"],
+        STATE_KEY: robot_obs,
+        ENV_STATE_KEY: scene_obs.astype(np.float32),
+        STATE_HISTORY_KEY: window.histories(robot_obs),  # (F, h, p)
+        SUBGOAL_TRACE_KEY: window.traces(robot_obs),  # (F, M, p)
+        ACTION_KEY: raw["rel_actions"].astype(np.float32),
+        calvin.FRAME_INDEX_KEY: frame_ids.astype(np.int64)[:, None],  # (F, 1)
+        TASK_KEY: np.array(episode.tasks, dtype=object),
     }
 
 
 def iter_frames(arrays: dict[str, np.ndarray]) -> Iterator[dict]:
     """Per-frame dicts for ``LeRobotDataset.add_frame`` (``task`` as a plain str)."""
-    for t in range(len(arrays["task"])):
-        yield {key: (str(value[t]) if key == "task" else value[t]) for key, value in arrays.items()}
+    for t in range(len(arrays[TASK_KEY])):
+        yield {key: (str(value[t]) if key == TASK_KEY else value[t]) for key, value in arrays.items()}
 
 
 @dataclass(frozen=True)
@@ -188,7 +220,7 @@ def write_part(job: PartJob) -> int:
         fps=CALVIN_FPS,
         features=job.features,
         root=tmp_dir,
-        robot_type=ROBOT_TYPE,
+        robot_type=calvin.ROBOT_TYPE,
         video_backend="pyav",  # decoding backend; avoids probing torchcodec, which needs system FFmpeg
         use_videos=job.options.image_format == "video",
         streaming_encoding=job.options.image_format == "video",

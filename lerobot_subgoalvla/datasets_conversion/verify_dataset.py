@@ -5,7 +5,7 @@ Checks (raising ValueError with one line naming the key, episode and fix on the 
 * the episode list (count, per-episode source frame range via ``calvin_frame_index``, length);
 * ``observation.state``, ``action`` and ``observation.environment_state`` equal the source arrays
   (``robot_obs``, ``rel_actions``, block-slot-canonicalised ``scene_obs``) cast to float32 - exactly;
-* ``observation.state_history`` / ``observation.subgoal_trace`` equal ``subgoal_traces.py``'s definition
+* ``observation.state_history`` / ``observation.subgoal_trace`` equal the contract's window definition
   applied to the episode's states - exactly;
 * camera frames, decoded by ``LeRobotDataset.__getitem__`` (``video_backend="pyav"``), against the source
   pixels: exact for ``--image-format image``; for AV1 video the mean absolute error must stay below
@@ -22,27 +22,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lerobot_subgoalvla.contract.calvin import FRAME_INDEX_KEY, GRIPPER_CAMERA_KEY, STATIC_CAMERA_KEY
+from lerobot_subgoalvla.contract.keys import (
+    ACTION_KEY,
+    ENV_STATE_KEY,
+    STATE_HISTORY_KEY,
+    STATE_KEY,
+    SUBGOAL_TRACE_KEY,
+)
 from lerobot_subgoalvla.datasets_conversion.calvin_format import CalvinSplit
 from lerobot_subgoalvla.datasets_conversion.calvin_quirks import EpisodeSpec
-from lerobot_subgoalvla.datasets_conversion.lerobot_parts import (
-    FRAME_INDEX_KEY,
-    GRIPPER_KEY,
-    STATIC_KEY,
-    ConversionOptions,
-    episode_arrays,
-)
+from lerobot_subgoalvla.datasets_conversion.lerobot_parts import ConversionOptions, episode_arrays
 
 #: Mean absolute pixel error (in [0, 1]) accepted for AV1 (crf 30) frames;
 #: measured ~0.01 on CALVIN-like renders.
 VIDEO_MEAN_ABS_TOLERANCE = 0.04
-NUMERIC_KEYS = (
-    "observation.state",
-    "observation.environment_state",
-    "observation.state_history",
-    "observation.subgoal_trace",
-    "action",
-    FRAME_INDEX_KEY,
-)
+NUMERIC_KEYS = (STATE_KEY, ENV_STATE_KEY, STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY, ACTION_KEY, FRAME_INDEX_KEY)
 
 
 @dataclass(frozen=True)
@@ -112,7 +107,10 @@ def _verify_images(dataset, split, columns, options, image_samples: int, num_epi
         source = split.load_frames(
             [int(columns[FRAME_INDEX_KEY][index].reshape(-1)[0])], ("rgb_static", "rgb_gripper")
         )
-        for key, raw in ((STATIC_KEY, source["rgb_static"][0]), (GRIPPER_KEY, source["rgb_gripper"][0])):
+        for key, raw in (
+            (STATIC_CAMERA_KEY, source["rgb_static"][0]),
+            (GRIPPER_CAMERA_KEY, source["rgb_gripper"][0]),
+        ):
             decoded = item[key].numpy().transpose(1, 2, 0)  # (C, H, W) -> (H, W, C)
             error = np.abs(decoded.astype(np.float64) - raw.astype(np.float64) / 255.0)
             errors_max.append(float(error.max()))

@@ -34,16 +34,14 @@ from lerobot.envs.utils import preprocess_observation
 from lerobot.policies import get_policy_class, make_pre_post_processors
 
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
-from lerobot_subgoalvla.cli_errors import user_errors
+from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, user_errors
+from lerobot_subgoalvla.contract.calvin import GRIPPER_CAMERA_KEY, STATIC_CAMERA_KEY
 from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
 from lerobot_subgoalvla.envs.calvin.protocol import LH_MTLC, SCENES
 from lerobot_subgoalvla.policies.subgoalvla.proprio_normalization import ProprioNormalizerProcessorStep
 from lerobot_subgoalvla.visualization.ghost_robots import render_trace, write_trace_media
 
 logger = logging.getLogger(__name__)
-
-STATIC_IMAGE_KEY = "observation.images.static"
-GRIPPER_IMAGE_KEY = "observation.images.gripper"
 
 
 def _proprio_normalizer(preprocessor: Any) -> ProprioNormalizerProcessorStep:
@@ -152,7 +150,7 @@ def _image_side(policy: Any, key: str) -> int:
 
 
 def _parse_args(argv: list[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
+    parser = OneLineArgumentParser(
         prog="subgoalvla-render-traces",
         description="Roll a SubgoalVLA checkpoint out in CALVIN; draw its planned subgoal traces as ghosts",
     )
@@ -174,8 +172,8 @@ def main(argv: list[str] | None = None) -> int:
     """``subgoalvla-render-traces``: write the ghost overlays of one rollout to ``--output``."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger("lerobot_subgoalvla").setLevel(logging.INFO)  # also when an import configured logging
-    args = _parse_args(argv)
     with user_errors(logger):
+        args = _parse_args(argv)
         if Path(args.output).suffix not in (".mp4", ".png"):
             raise ValueError(
                 f"--output {args.output}: use a .mp4 (video) or .png (strip of frames) file name"
@@ -188,8 +186,8 @@ def main(argv: list[str] | None = None) -> int:
             chain_start=args.chain,
             chain_stop=args.chain + 1,
             episode_length=args.steps,
-            static_size=_image_side(policy, STATIC_IMAGE_KEY),
-            gripper_size=_image_side(policy, GRIPPER_IMAGE_KEY),
+            static_size=_image_side(policy, STATIC_CAMERA_KEY),
+            gripper_size=_image_side(policy, GRIPPER_CAMERA_KEY),
         )
         try:
             frames = rollout_with_traces(policy, preprocessor, postprocessor, env, args.steps, args.seed)

@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 from native_fixtures import write_native_split
 
+from lerobot_subgoalvla.contract.metadata import ProprioMetadata
+from lerobot_subgoalvla.contract.window import TraceWindow
 from lerobot_subgoalvla.datasets_conversion.calvin_format import CalvinSplit, frame_filename
 from lerobot_subgoalvla.datasets_conversion.calvin_quirks import PLAY_TASK, canonicalize_scene_obs
 from lerobot_subgoalvla.datasets_conversion.convert_calvin import convert, main
 from lerobot_subgoalvla.datasets_conversion.lerobot_parts import ConversionOptions
-from lerobot_subgoalvla.datasets_conversion.subgoal_traces import state_history, subgoal_traces
 from lerobot_subgoalvla.datasets_conversion.verify_dataset import verify_dataset
 
 SEGMENTS = [(0, 29), (40, 74)]
@@ -67,8 +68,9 @@ def test_lang_mode_contract(source: Path, tmp_path: Path) -> None:
         _columns(dataset, "observation.subgoal_trace"),
     )
     assert history.shape == (67, 5, 15) and trace.shape == (67, 4, 15)
-    np.testing.assert_array_equal(history[21:41], state_history(state[21:41], 5))
-    np.testing.assert_array_equal(trace[21:41], subgoal_traces(state[21:41], 3, 4))
+    window = TraceWindow(history_length=5, trace_start=3, trace_length=4)
+    np.testing.assert_array_equal(history[21:41], window.histories(state[21:41]))
+    np.testing.assert_array_equal(trace[21:41], window.traces(state[21:41]))
     np.testing.assert_array_equal(trace[40, :, 0], [29, 29, 29, 29])  # clamped to the episode's last frame
     assert [dataset[i]["task"] for i in (0, 21, 41)] == [
         "open the drawer",
@@ -76,9 +78,13 @@ def test_lang_mode_contract(source: Path, tmp_path: Path) -> None:
         "lift the red block",
     ]
     info = json.loads((tmp_path / "lang" / "meta" / "info.json").read_text())
-    sub = info["subgoalvla"]
-    assert (sub["trace_start"], sub["trace_length"], sub["history_length"]) == (3, 4, 5)
-    assert sub["block_order"] == ["red", "blue", "pink"] and sub["mode"] == "lang"
+    assert "subgoalvla" not in info  # LeRobot would warn about an unknown top-level field at every load
+    metadata = ProprioMetadata.from_features(info["features"])
+    assert metadata.window == window and metadata.fps == 30 and metadata.angle_dims == (3, 4, 5)
+    assert metadata.extra["block_order"] == ["red", "blue", "pink"] and metadata.extra["mode"] == "lang"
+    assert "pull the handle to open the drawer" in metadata.instructions  # CALVIN's evaluation phrasing
+    assert str(tmp_path) not in json.dumps(info)  # no local path is published with the dataset
+    assert str(tmp_path) not in (tmp_path / "lang" / "README.md").read_text()
     assert info["features"]["observation.images.static"]["dtype"] == "image"
     assert (tmp_path / "lang" / "README.md").is_file()
     assert not (tmp_path / "lang.partial").exists()

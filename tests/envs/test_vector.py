@@ -11,7 +11,8 @@ import numpy as np
 from lerobot.envs import utils as lerobot_env_utils
 
 from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
-from lerobot_subgoalvla.envs.calvin.vector import NEW_ROLLOUT_OPTION, FrozenAfterEpisodeEnd, make_frozen_env
+from lerobot_subgoalvla.envs.calvin.protocol import NEW_ROLLOUT_OPTION
+from lerobot_subgoalvla.envs.calvin.vector import FrozenAfterEpisodeEnd, make_frozen_env
 
 SMALL = {"task": "open_drawer", "static_size": 16, "gripper_size": 16, "episode_length": 3}
 

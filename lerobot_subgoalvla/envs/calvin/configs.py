@@ -24,10 +24,12 @@ from typing import Any
 
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
-from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
 from lerobot_subgoalvla.calvin_vocab import CALVIN_FPS, TASK_NAMES
 from lerobot_subgoalvla.config_error import ConfigError
+from lerobot_subgoalvla.contract.calvin import GRIPPER_CAMERA_KEY, STATIC_CAMERA_KEY
+from lerobot_subgoalvla.contract.keys import ACTION_KEY as ACTION
+from lerobot_subgoalvla.contract.keys import ENV_STATE_KEY, STATE_KEY
 from lerobot_subgoalvla.envs.calvin.protocol import (
     ACTION_MODES,
     CALVIN_EP_LEN,
@@ -50,13 +52,14 @@ def _default_features() -> dict[str, PolicyFeature]:
 
 
 def _default_features_map() -> dict[str, str]:
-    # Must agree with lerobot's preprocess_observation, which does the runtime renaming (pitfall 16).
+    # Must agree with lerobot's preprocess_observation, which renames at run time: `pixels/<name>` becomes
+    # `observation.images.<name>`, `agent_pos` the state (it ignores this map).
     return {
         ACTION: ACTION,
-        "agent_pos": OBS_STATE,
-        "environment_state": OBS_ENV_STATE,
-        "pixels/static": f"{OBS_IMAGES}.static",
-        "pixels/gripper": f"{OBS_IMAGES}.gripper",
+        "agent_pos": STATE_KEY,
+        "environment_state": ENV_STATE_KEY,
+        "pixels/static": STATIC_CAMERA_KEY,
+        "pixels/gripper": GRIPPER_CAMERA_KEY,
     }
 
 

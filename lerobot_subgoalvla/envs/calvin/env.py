@@ -46,13 +46,13 @@ from lerobot_subgoalvla.envs.calvin.protocol import (
     CALVIN_EP_LEN,
     CHAIN_LENGTH,
     LH_MTLC,
+    NEW_ROLLOUT_OPTION,
     NUM_EVAL_CHAINS,
     SCENES,
 )
 from lerobot_subgoalvla.envs.calvin.sim.cameras import check_renderer
 from lerobot_subgoalvla.envs.calvin.sim.scene import SCENE_OBS_DIM
 from lerobot_subgoalvla.envs.calvin.sim.simulation import ROBOT_OBS_DIM, CalvinSimulation
-from lerobot_subgoalvla.envs.calvin.vector import NEW_ROLLOUT_OPTION
 
 logger = logging.getLogger(__name__)
 

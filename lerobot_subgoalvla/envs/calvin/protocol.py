@@ -20,3 +20,7 @@ ACTION_MODES: tuple[str, ...] = ("relative", "absolute")
 RENDERERS: tuple[str, ...] = ("tiny", "egl")
 #: ``gymnasium.make(GYM_ID, task=..., ...)`` builds a ``CalvinEnv`` (registered by ``envs/calvin/__init__``).
 GYM_ID = "lerobot_subgoalvla/Calvin-v0"
+
+#: the reset option LeRobot sends at the start of each rollout (``lerobot.envs.utils``; checked by
+#: ``tests/envs/test_vector.py``): the env accepts it, the frozen vector sub-envs (``vector.py``) run again.
+NEW_ROLLOUT_OPTION = "lerobot_new_rollout"

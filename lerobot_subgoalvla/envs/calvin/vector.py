@@ -15,10 +15,7 @@ from typing import Any
 import gymnasium as gym
 from gymnasium.vector.utils import batch_space
 
-#: The reset option LeRobot's rollout sets at the start of every rollout
-#: (``lerobot.envs.utils``); its value is
-#: LeRobot's contract, checked by ``tests/envs/test_vector.py``.
-NEW_ROLLOUT_OPTION = "lerobot_new_rollout"
+from lerobot_subgoalvla.envs.calvin.protocol import NEW_ROLLOUT_OPTION
 
 
 class FrozenAfterEpisodeEnd(gym.Wrapper):

@@ -1,4 +1,4 @@
-"""Semantics of the state history / subgoal trace windows (data contract) and the online buffer."""
+"""The data contract: the history / trace window (offline), the policy's online buffer, the metadata."""
 
 from __future__ import annotations
 
@@ -6,11 +6,17 @@ import numpy as np
 import pytest
 import torch
 
-from lerobot_subgoalvla.datasets_conversion.subgoal_traces import (
-    StateHistoryBuffer,
-    state_history,
-    subgoal_traces,
-)
+from lerobot_subgoalvla.contract.metadata import ProprioMetadata
+from lerobot_subgoalvla.contract.window import TraceWindow
+from lerobot_subgoalvla.policies.subgoalvla.state_history import StateHistoryBuffer
+
+
+def state_history(states: np.ndarray, length: int = 15, stride: int = 1) -> np.ndarray:
+    return TraceWindow(history_length=length, stride=stride).histories(states)
+
+
+def subgoal_traces(states: np.ndarray, start: int = 14, length: int = 8, stride: int = 1) -> np.ndarray:
+    return TraceWindow(trace_start=start, trace_length=length, stride=stride).traces(states)
 
 
 def _ramp(num_frames: int, dim: int = 15) -> np.ndarray:
@@ -61,14 +67,34 @@ def test_short_episode_shorter_than_windows() -> None:
     np.testing.assert_array_equal(state_history(obs)[2, :13], np.repeat(obs[:1], 13, axis=0))
 
 
-def test_torch_input_matches_numpy() -> None:
-    obs = _ramp(25)
-    tobs = torch.from_numpy(obs).double()
-    hist_t = state_history(tobs, length=6)
-    trace_t = subgoal_traces(tobs, start=2, length=4)
-    assert isinstance(hist_t, torch.Tensor) and hist_t.dtype == torch.float64
-    np.testing.assert_array_equal(hist_t.numpy(), state_history(obs, length=6).astype(np.float64))
-    np.testing.assert_array_equal(trace_t.numpy(), subgoal_traces(obs, start=2, length=4).astype(np.float64))
+def test_stride_spaces_history_and_trace_states() -> None:
+    obs = _ramp(40, dim=2)
+    window = TraceWindow(history_length=4, trace_start=5, trace_length=3, stride=3)
+    np.testing.assert_array_equal(window.histories(obs)[20, :, 0], [11, 14, 17, 20])
+    np.testing.assert_array_equal(window.traces(obs)[20, :, 0], [25, 28, 31])
+    assert window.trace_end == 11 and window.history_span == 9
+
+
+@pytest.mark.parametrize(("fps", "stride", "start"), [(30, 1, 14), (80, 3, 37), (10, 1, 5), (15, 1, 7)])
+def test_window_keeps_the_papers_seconds_at_other_frame_rates(fps: float, stride: int, start: int) -> None:
+    window = TraceWindow.for_fps(fps)
+    assert (window.stride, window.trace_start, window.history_length, window.trace_length) == (
+        stride,
+        start,
+        15,
+        8,
+    )
+
+
+def test_metadata_round_trips_through_a_feature_dict() -> None:
+    features = {"observation.subgoal_trace": {"dtype": "float32", "shape": (8, 4), "names": None}}
+    metadata = ProprioMetadata(TraceWindow.for_fps(80), 80, (3,), (0.5,), ("open the drawer",), "tests")
+    attached = metadata.attach(features)
+    assert "info" not in features["observation.subgoal_trace"]  # the input is not changed
+    assert ProprioMetadata.from_features(attached) == metadata
+    assert ProprioMetadata.from_features(features) is None
+    with pytest.raises(ValueError, match="index 3 is out of range"):
+        metadata.check_state_dim(2, "--angle-dims")
 
 
 @pytest.mark.parametrize(
@@ -76,7 +102,7 @@ def test_torch_input_matches_numpy() -> None:
     [
         (lambda: state_history(np.zeros((5, 15)), length=0), "length"),
         (lambda: subgoal_traces(np.zeros((5, 15)), start=-1), "start"),
-        (lambda: subgoal_traces(np.zeros((5, 2, 15))), r"\(T, P\)"),
+        (lambda: subgoal_traces(np.zeros((5, 2, 15))), r"\(T, p\)"),
         (lambda: state_history(np.zeros((0, 15))), "empty"),
     ],
 )
@@ -112,6 +138,15 @@ def test_buffer_reset_all_and_masked() -> None:
     np.testing.assert_array_equal(out[:, :, 0].numpy(), np.full((3, 3), 4.0))
     with pytest.raises(ValueError, match="reset"):
         buffer.push(torch.zeros(2, 1))
+
+
+@pytest.mark.parametrize("stride", [1, 3])
+def test_strided_buffer_matches_offline_history(stride: int) -> None:
+    obs = _ramp(30, dim=3)
+    buffer = StateHistoryBuffer(length=5, stride=stride)
+    offline = state_history(obs, length=5, stride=stride)
+    for t in range(30):
+        np.testing.assert_array_equal(buffer.push(torch.from_numpy(obs[None, t]))[0].numpy(), offline[t])
 
 
 def test_buffer_output_is_not_aliased() -> None:
