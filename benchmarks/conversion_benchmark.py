@@ -33,6 +33,8 @@ from pathlib import Path
 import av
 import numpy as np
 
+from lerobot_subgoalvla.contract.calvin import GRIPPER_CAMERA_KEY as GRIPPER
+from lerobot_subgoalvla.contract.calvin import STATIC_CAMERA_KEY as STATIC
 from lerobot_subgoalvla.datasets_conversion.calvin_format import (
     LanguageAnnotations,
     write_frame,
@@ -40,8 +42,6 @@ from lerobot_subgoalvla.datasets_conversion.calvin_format import (
     write_segments,
 )
 from lerobot_subgoalvla.datasets_conversion.convert_calvin import convert
-from lerobot_subgoalvla.datasets_conversion.lerobot_parts import GRIPPER_KEY as GRIPPER
-from lerobot_subgoalvla.datasets_conversion.lerobot_parts import STATIC_KEY as STATIC
 from lerobot_subgoalvla.datasets_conversion.lerobot_parts import ConversionOptions
 
 logger = logging.getLogger("conversion_benchmark")

@@ -30,9 +30,14 @@ from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 from transformers import CLIPVisionConfig, LlamaConfig, LlavaConfig, Qwen2Config, SiglipVisionConfig
 
+from lerobot_subgoalvla.calvin_vocab import ALL_INSTRUCTIONS
+from lerobot_subgoalvla.contract.calvin import GRIPPER_CAMERA_KEY, STATIC_CAMERA_KEY
+from lerobot_subgoalvla.contract.keys import ACTION_KEY, STATE_HISTORY_KEY, STATE_KEY
 from lerobot_subgoalvla.policies.subgoalvla.backbone import VLMBackbone
+from lerobot_subgoalvla.policies.subgoalvla.config_components import BackboneConfig
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
 from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
+from lerobot_subgoalvla.policies.subgoalvla.tokenizer import vocabulary_words
 
 STATE_DIM, ACTION_DIM = 15, 7
 
@@ -86,14 +91,22 @@ def architecture(preset: str) -> LlavaConfig | None:
     return None
 
 
+#: presets with a tiny random backbone, whose vocabulary comes from the training data.
+TINY = ("tiny", "laptop")
+
+
 def make_config(preset: str) -> SubgoalVLAConfig:
     features = {
-        "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,)),
-        "observation.images.static": PolicyFeature(type=FeatureType.VISUAL, shape=(3, 200, 200)),
-        "observation.images.gripper": PolicyFeature(type=FeatureType.VISUAL, shape=(3, 84, 84)),
+        STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,)),
+        STATIC_CAMERA_KEY: PolicyFeature(type=FeatureType.VISUAL, shape=(3, 200, 200)),
+        GRIPPER_CAMERA_KEY: PolicyFeature(type=FeatureType.VISUAL, shape=(3, 84, 84)),
     }
-    actions = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
-    return SubgoalVLAConfig(preset=preset, input_features=features, output_features=actions)
+    actions = {ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
+    # a tiny backbone's vocabulary comes from the training data; here CALVIN's, as lerobot-train would fill it
+    backbone = BackboneConfig(vocabulary=list(vocabulary_words(ALL_INSTRUCTIONS)) if preset in TINY else None)
+    return SubgoalVLAConfig(
+        preset=preset, input_features=features, output_features=actions, backbone=backbone
+    )
 
 
 def build_model(preset: str, device: str) -> SubgoalVLAModel:
@@ -142,13 +155,11 @@ def fake_inputs(model: SubgoalVLAModel, device: str, batch: int = 1) -> dict[str
     ids = torch.zeros(batch, length, dtype=torch.long, device=device)
     ids[:, : spec.num_image_tokens] = spec.image_token_id
     return {
-        "observation.images.static": torch.rand(batch, 3, 200, 200, device=device),
-        "observation.images.gripper": torch.rand(batch, 3, 84, 84, device=device),
+        STATIC_CAMERA_KEY: torch.rand(batch, 3, 200, 200, device=device),
+        GRIPPER_CAMERA_KEY: torch.rand(batch, 3, 84, 84, device=device),
         OBS_LANGUAGE_TOKENS: ids,
         OBS_LANGUAGE_ATTENTION_MASK: torch.ones(batch, length, dtype=torch.long, device=device),
-        "observation.state_history": torch.randn(
-            batch, model.config.state_history_len, STATE_DIM, device=device
-        ),
+        STATE_HISTORY_KEY: torch.randn(batch, model.config.state_history_len, STATE_DIM, device=device),
     }
 
 
@@ -217,7 +228,7 @@ def latency_row(model: SubgoalVLAModel, device: str, runs: int) -> dict[str, flo
     shared, oversubscribed CPU estimates the latency the chunk would have on an idle core (CPU device only).
     """
     batch = fake_inputs(model, device)
-    history = batch["observation.state_history"]
+    history = batch[STATE_HISTORY_KEY]
     times: dict[str, list[float]] = {
         "backbone": [],
         "planner": [],

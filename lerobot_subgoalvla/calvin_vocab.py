@@ -113,3 +113,10 @@ def _training_annotations() -> dict[str, tuple[str, ...]]:
 #: data in ``calvin_training_annotations.json`` beside this module.
 #: ``auto_lang_ann.npy``'s ``language.ann`` draws from these; ``EVAL_INSTRUCTIONS`` are not among them.
 TRAINING_ANNOTATIONS: MappingProxyType[str, tuple[str, ...]] = MappingProxyType(_training_annotations())
+
+#: every instruction CALVIN uses: the evaluation phrasing and all training annotations (what a policy
+#: trained on a CALVIN dataset must read; tests and benchmarks build tiny vocabularies from it).
+ALL_INSTRUCTIONS: tuple[str, ...] = (
+    *EVAL_INSTRUCTIONS.values(),
+    *(text for texts in TRAINING_ANNOTATIONS.values() for text in texts),
+)

@@ -33,7 +33,7 @@ STAMP="$VENV/.installed-pyproject.sha256"
 WANT="$(sha256sum "$REPO_ROOT/pyproject.toml" | cut -d' ' -f1)"
 if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$WANT" ]; then
     echo "Installing lerobot_policy_subgoalvla and its dependencies into $VENV (first time: several minutes)"
-    VIRTUAL_ENV="$VENV" "$VENV/bin/uv" pip install --python "$VENV/bin/python" -e "$REPO_ROOT[dev,viz]"
+    VIRTUAL_ENV="$VENV" "$VENV/bin/uv" pip install --python "$VENV/bin/python" -e "$REPO_ROOT[dev,viz,metaworld]"
     echo "$WANT" > "$STAMP"
     # LeRobot's default video decoder needs FFmpeg's shared libraries (system packages, not pip's).
     if ! "$VENV/bin/python" -c "import torchcodec" >/dev/null 2>&1; then

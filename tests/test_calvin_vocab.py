@@ -37,7 +37,7 @@ def test_unknown_task_names_the_valid_ones():
 def test_tiny_tokenizer_knows_every_training_and_evaluation_word():
     from helpers.vocabulary import CALVIN_WORDS
 
-    from lerobot_subgoalvla.policies.subgoalvla.backbone import UNK_TOKEN, build_tiny_tokenizer
+    from lerobot_subgoalvla.policies.subgoalvla.tokenizer import UNK_TOKEN, build_tiny_tokenizer
 
     tokenizer = build_tiny_tokenizer(CALVIN_WORDS)
     unk = tokenizer.convert_tokens_to_ids(UNK_TOKEN)

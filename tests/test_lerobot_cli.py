@@ -49,8 +49,8 @@ def test_a_dataset_without_a_contract_feature_is_one_line_through_lerobot_train(
     assert result.returncode == 1
     assert "Traceback" not in result.stderr
     last = result.stderr.strip().splitlines()[-1]
-    assert "error: SubgoalVLA needs the feature 'observation.subgoal_trace'" in last
-    assert "subgoalvla-convert-calvin" in last
+    assert "error: the training dataset lacks observation.subgoal_trace" in last
+    assert "subgoalvla-add-traces" in last
 
 
 def test_every_policy_and_env_flag_has_a_one_line_help() -> None:

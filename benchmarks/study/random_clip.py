@@ -36,9 +36,15 @@ def build_tokenizer():
     from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
     from transformers import PreTrainedTokenizerFast
 
-    from lerobot_subgoalvla.policies.subgoalvla.backbone import PAD_TOKEN, UNK_TOKEN, tiny_vocabulary
+    from lerobot_subgoalvla.calvin_vocab import ALL_INSTRUCTIONS
+    from lerobot_subgoalvla.policies.subgoalvla.tokenizer import (
+        IMAGE_TOKEN,
+        PAD_TOKEN,
+        UNK_TOKEN,
+        vocabulary_words,
+    )
 
-    words = [word for word in tiny_vocabulary() if word not in (PAD_TOKEN, UNK_TOKEN)]
+    words = [IMAGE_TOKEN, *vocabulary_words(ALL_INSTRUCTIONS)]  # the tiny tokenizer's words, as before
     vocab = {word: index for index, word in enumerate((PAD_TOKEN, UNK_TOKEN, END_OF_TEXT, *words))}
     backend = Tokenizer(models.WordLevel(vocab=vocab, unk_token=UNK_TOKEN))
     backend.normalizer = normalizers.Lowercase()

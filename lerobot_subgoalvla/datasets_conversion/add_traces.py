@@ -124,7 +124,7 @@ def add_traces(
         raise ValueError("--output-root must differ from --root: the input dataset is never changed")
     if output_root.exists():
         raise FileExistsError(f"--output-root {output_root} already exists; choose a new folder")
-    dataset = LeRobotDataset(repo_id, root=root)
+    dataset = LeRobotDataset(repo_id, root=root, video_backend="pyav")  # no torchcodec probe (needs FFmpeg)
     features = dataset.meta.features
     _check_input(features, dataset.root)
     state_dim = tuple(features[STATE_KEY]["shape"])[-1]
@@ -157,7 +157,7 @@ def add_traces(
         "%s: %d episodes, %d frames with history and trace (%s at %g fps) -> %s",
         repo_id, dataset.meta.total_episodes, len(states), window.describe(), dataset.meta.fps, output_root,
     )  # fmt: skip
-    return LeRobotDataset(output_repo_id or repo_id, root=output_root)
+    return LeRobotDataset(output_repo_id or repo_id, root=output_root, video_backend="pyav")
 
 
 def _check_input(features: dict[str, dict], root: Path) -> None:

@@ -6,16 +6,12 @@
 
 from __future__ import annotations
 
-from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS, TRAINING_ANNOTATIONS
-from lerobot_subgoalvla.policies.subgoalvla.backbone import vocabulary_words
+from lerobot_subgoalvla.calvin_vocab import ALL_INSTRUCTIONS
 from lerobot_subgoalvla.policies.subgoalvla.config_components import BackboneConfig
+from lerobot_subgoalvla.policies.subgoalvla.tokenizer import vocabulary_words
 
 #: every word of CALVIN's evaluation instructions and training annotations.
-CALVIN_WORDS = list(
-    vocabulary_words(
-        [*EVAL_INSTRUCTIONS.values(), *(t for texts in TRAINING_ANNOTATIONS.values() for t in texts)]
-    )
-)
+CALVIN_WORDS = list(vocabulary_words(ALL_INSTRUCTIONS))
 
 
 def calvin_backbone(**fields: object) -> BackboneConfig:

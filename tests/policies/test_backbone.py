@@ -22,16 +22,14 @@ from transformers import (
 
 from lerobot_subgoalvla.calvin_vocab import EVAL_INSTRUCTIONS
 from lerobot_subgoalvla.policies.subgoalvla.backbone import (
-    IMAGE_TOKEN,
     VLMBackbone,
     VLMInputSpec,
     build_tiny_llava_config,
-    build_tiny_tokenizer,
-    load_tokenizer,
     prepare_pixel_values,
     tokenize_instructions,
 )
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
+from lerobot_subgoalvla.policies.subgoalvla.tokenizer import IMAGE_TOKEN, build_tiny_tokenizer, load_tokenizer
 
 INSTRUCTIONS = ["open the drawer", "push the sliding door to the left side"]
 

@@ -8,9 +8,10 @@ from helpers.vocabulary import CALVIN_WORDS, calvin_backbone
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
 
-from lerobot_subgoalvla.policies.subgoalvla.backbone import build_tiny_tokenizer, tokenize_instructions
+from lerobot_subgoalvla.policies.subgoalvla.backbone import tokenize_instructions
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
 from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
+from lerobot_subgoalvla.policies.subgoalvla.tokenizer import build_tiny_tokenizer
 
 P, A, H, M, N = 15, 7, 15, 8, 15
 

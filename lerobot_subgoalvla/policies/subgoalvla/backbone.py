@@ -18,7 +18,7 @@ builds a randomly initialised tiny LLaVA from a config plus an offline word-leve
 (``build_tiny_tokenizer``) for tests and CPU runs.
 
 Input helpers the processor and model call:
-``load_tokenizer`` / ``build_tiny_tokenizer`` - the tokenizer; ``VLMInputSpec.load`` - image size, mean/std
+``tokenizer.py`` - the tokenizers; ``VLMInputSpec.load`` - image size, mean/std
 and image-placeholder facts from the model config alone (no weights); ``tokenize_instructions`` - LLaVA-style
 input ids with the ``<image>`` placeholder expanded to one id per image token; ``prepare_pixel_values`` - the
 cameras side by side, resized to the vision tower's size and normalised with its statistics.
@@ -29,84 +29,29 @@ instruction), ``E`` LLM hidden size, ``H, W`` camera image size, ``I`` vision-to
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F  # noqa: N812
-from tokenizers import Tokenizer, models, normalizers, pre_tokenizers
 from torch import Tensor, nn
 from transformers import (
     AutoConfig,
     AutoImageProcessor,
     AutoModel,
     AutoModelForImageTextToText,
-    AutoTokenizer,
     CLIPVisionConfig,
     LlamaConfig,
     LlavaConfig,
     PretrainedConfig,
     PreTrainedTokenizerBase,
-    PreTrainedTokenizerFast,
 )
 from transformers.utils.constants import OPENAI_CLIP_MEAN, OPENAI_CLIP_STD
 
 from lerobot_subgoalvla.policies.subgoalvla.config_components import TinyLlavaDims
+from lerobot_subgoalvla.policies.subgoalvla.tokenizer import IMAGE_TOKEN, PAD_TOKEN, tiny_vocabulary
 
-PAD_TOKEN, UNK_TOKEN, IMAGE_TOKEN = "<pad>", "<unk>", "<image>"
-SPECIAL_TOKENS = (PAD_TOKEN, UNK_TOKEN, IMAGE_TOKEN)
 _DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}
-
-
-# ------------------------------------------------------------------------------------------------------------
-# Tokenizer
-# ------------------------------------------------------------------------------------------------------------
-def vocabulary_words(instructions: Iterable[str]) -> tuple[str, ...]:
-    """The sorted distinct words of ``instructions`` as the tiny tokenizer splits them (lower-cased,
-    whitespace and punctuation): the vocabulary a tiny backbone is built with (``BackboneConfig.vocabulary``).
-    """
-    splitter = pre_tokenizers.Whitespace()
-    words: set[str] = set()
-    for text in instructions:
-        words.update(word for word, _ in splitter.pre_tokenize_str(text.lower()))
-    return tuple(sorted(words - set(SPECIAL_TOKENS)))
-
-
-def unknown_words(instructions: Iterable[str], vocabulary: Iterable[str]) -> list[str]:
-    """The words of ``instructions`` the tiny tokenizer would map to ``<unk>``, sorted."""
-    return sorted(set(vocabulary_words(instructions)) - set(vocabulary))
-
-
-def tiny_vocabulary(words: Sequence[str]) -> list[str]:
-    """The tiny tokenizer's tokens: the specials, then ``words`` (deterministic: a saved pipeline rebuilds the
-    identical tokenizer from the words stored in its config)."""
-    return [*SPECIAL_TOKENS, *words]
-
-
-def build_tiny_tokenizer(words: Sequence[str]) -> PreTrainedTokenizerFast:
-    """Offline word-level tokenizer (lower-cased, whitespace/punctuation split) over
-    ``tiny_vocabulary(words)``."""
-    vocab = {word: index for index, word in enumerate(tiny_vocabulary(words))}
-    backend = Tokenizer(models.WordLevel(vocab=vocab, unk_token=UNK_TOKEN))
-    backend.normalizer = normalizers.Lowercase()
-    backend.pre_tokenizer = pre_tokenizers.Whitespace()
-    return PreTrainedTokenizerFast(
-        tokenizer_object=backend,
-        pad_token=PAD_TOKEN,
-        unk_token=UNK_TOKEN,
-        extra_special_tokens={"image_token": IMAGE_TOKEN},
-        padding_side="right",
-    )
-
-
-def load_tokenizer(name_or_path: str | None, tiny: TinyLlavaDims | None = None) -> PreTrainedTokenizerBase:
-    """The backbone's tokenizer: the checkpoint's own, or the tiny offline one (over ``tiny.vocabulary``) when
-    ``name_or_path`` is None."""
-    if name_or_path is None:
-        return build_tiny_tokenizer(_required_tiny(tiny).vocabulary)
-    tokenizer = AutoTokenizer.from_pretrained(name_or_path)
-    tokenizer.padding_side = "right"
-    return tokenizer
 
 
 # ------------------------------------------------------------------------------------------------------------

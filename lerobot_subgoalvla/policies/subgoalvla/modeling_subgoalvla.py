@@ -43,11 +43,11 @@ from torch import Tensor
 
 from lerobot_subgoalvla.config_error import DatasetContractError
 from lerobot_subgoalvla.contract.keys import STATE_HISTORY_KEY, STATE_KEY, SUBGOAL_TRACE_KEY, TASK_KEY
-from lerobot_subgoalvla.policies.subgoalvla.backbone import vocabulary_words
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
 from lerobot_subgoalvla.policies.subgoalvla.dataset_features import ADD_TRACES_COMMAND, dataset_instructions
 from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
 from lerobot_subgoalvla.policies.subgoalvla.state_history import StateHistoryBuffer
+from lerobot_subgoalvla.policies.subgoalvla.tokenizer import vocabulary_words
 
 logger = logging.getLogger(__name__)
 

@@ -80,11 +80,8 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
             raise ValueError("subgoalvla_tokenizer_processor needs exactly one of name_or_path / tiny_dims")
         # Imported here, not at module level: registering this step (lerobot_subgoalvla.plugin) must not load
         # transformers; building it does.
-        from lerobot_subgoalvla.policies.subgoalvla.backbone import (
-            VLMInputSpec,
-            load_tokenizer,
-            tokenize_instructions,
-        )
+        from lerobot_subgoalvla.policies.subgoalvla.backbone import VLMInputSpec, tokenize_instructions
+        from lerobot_subgoalvla.policies.subgoalvla.tokenizer import load_tokenizer
 
         self._tokenize = tokenize_instructions
 
@@ -118,7 +115,7 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
 
     def _warn_on_unknown_words(self, instructions: list[str]) -> None:
         """Log once per instruction the words a tiny vocabulary lacks (they become ``<unk>``)."""
-        from lerobot_subgoalvla.policies.subgoalvla.backbone import unknown_words
+        from lerobot_subgoalvla.policies.subgoalvla.tokenizer import unknown_words
 
         for text in set(instructions) - self._warned:
             self._warned.add(text)
