@@ -11,7 +11,7 @@ Times are CPU time of the calling thread (``time.thread_time``; pybullet DIRECT 
 step costs on a dedicated core, so that a loaded shared machine still gives meaningful numbers; the load
 average is printed for context.
 
-From the total it estimates the simulator-only wall time of the 1000-chain LH-MTLC evaluation (calvin-spec
+From the total it estimates the simulator-only wall time of the 1000-chain LH-MTLC evaluation (docs/calvin.md
 4.3): upper bound 1000 x 5 x 360 steps (every subtask times out), and a typical case in which each chain
 completes ``--typical-length`` subtasks of ``--typical-subtask-steps`` steps and then fails one at 360 steps.
 Policy inference is added with ``--policy-ms-per-chunk`` (e.g. the "chunk CPU" column of

@@ -1,7 +1,7 @@
 """CALVIN's vocabulary, shared by the env, the data path, the report and the processor.
 
-One neutral module (DESIGN.md, "Seams between the parts") so that no subpackage imports another for names.
-Every fact here is from ``calvin-spec.md``: sections 1.4 / 1.5 (observation layouts), 2.3 (task ids and
+One neutral module (docs/architecture.md, "The seams") so that no subpackage imports another for names.
+Every fact here is from ``docs/calvin.md``: sections 1.4 / 1.5 (observation layouts), 2.3 (task ids and
 names), 4.3 (evaluation instructions).
 """
 

@@ -1,4 +1,4 @@
-"""The shared CALVIN vocabulary: layouts, task names, evaluation and training instructions (calvin-spec
+"""The shared CALVIN vocabulary: layouts, task names, evaluation and training instructions (docs/calvin.md
 1.4-1.7, 2.3, 4.3)."""
 
 import pytest

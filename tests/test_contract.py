@@ -154,3 +154,17 @@ def test_buffer_output_is_not_aliased() -> None:
     first = buffer.push(torch.zeros(1, 3))
     buffer.push(torch.ones(1, 3))
     assert torch.count_nonzero(first) == 0
+
+
+def test_keys_are_lerobots_constants() -> None:
+    from lerobot.utils import constants
+
+    from lerobot_subgoalvla.contract import keys
+
+    assert (keys.STATE_KEY, keys.ACTION_KEY, keys.ENV_STATE_KEY) == (
+        constants.OBS_STATE,
+        constants.ACTION,
+        constants.OBS_ENV_STATE,
+    )
+    assert keys.SINGLE_IMAGE_KEY == constants.OBS_IMAGE and keys.IMAGES_PREFIX == constants.OBS_IMAGES + "."
+    assert keys.OBS_PREFIX == constants.OBS_PREFIX

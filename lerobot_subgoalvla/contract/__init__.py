@@ -2,10 +2,10 @@
 metadata a dataset carries about them.
 
 Every other part (policy, converters, envs, visualisation, tests) imports its keys and window facts from here;
-nothing here imports another part of the project, torch or LeRobot's heavy modules (only
-``lerobot.utils.constants``, whose names this module reuses), so the light commands stay light.
+nothing here imports another part of the project, torch or LeRobot (numpy only), so the light commands and env
+workers stay light.
 
-- :mod:`.keys`: the batch keys (LeRobot's own constants plus the two columns SubgoalVLA adds).
+- :mod:`.keys`: the batch keys (LeRobot's own, checked against its constants, plus SubgoalVLA's two columns).
 - :mod:`.window`: :class:`~.window.TraceWindow`, the definition of ``observation.state_history`` and
   ``observation.subgoal_trace`` as windows over an episode's ``observation.state``; how it scales with fps.
 - :mod:`.metadata`: :class:`~.metadata.ProprioMetadata`, the window, the wrapping angles and the extra

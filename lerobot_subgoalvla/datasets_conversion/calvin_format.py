@@ -1,4 +1,4 @@
-"""CALVIN's native dataset format: schema, reader and writer (calvin-spec.md section 1).
+"""CALVIN's native dataset format: schema, reader and writer (docs/calvin.md section 1).
 
 A CALVIN split directory (``training/`` or ``validation/``) holds one ``episode_XXXXXXX.npz`` per 30 Hz
 frame (7-digit, zero-padded frame id), the segment table ``ep_start_end_ids.npy`` (inclusive rows;
@@ -191,7 +191,7 @@ def check_frame(path: Path, keys: Sequence[str] = CORE_KEYS) -> dict[str, np.nda
         if not spec.matches(array):
             raise ValueError(
                 f"{path}: key {key!r} is {array.dtype} {array.shape}, expected {spec.describe()}; "
-                "re-export the frame in CALVIN's format (calvin-spec 1.3)"
+                "re-export the frame in CALVIN's format (docs/calvin.md 1.3)"
             )
         if array.dtype.kind == "f" and not np.isfinite(array).all():
             bad = np.flatnonzero(~np.isfinite(array.ravel()))

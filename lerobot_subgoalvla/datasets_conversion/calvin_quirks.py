@@ -1,4 +1,4 @@
-"""CALVIN dataset quirks and how the converter resolves them (calvin-spec.md 1.5, 1.7, 1.8).
+"""CALVIN dataset quirks and how the converter resolves them (docs/calvin.md 1.5, 1.7, 1.8).
 
 Decisions (documented in docs/data.md):
 

@@ -1,4 +1,4 @@
-"""Up-front validation of a native CALVIN split (calvin-spec.md 1.1-1.3, 1.7).
+"""Up-front validation of a native CALVIN split (docs/calvin.md 1.1-1.3, 1.7).
 
 Every problem is reported as ONE line naming the file and the fix (team standard), raised as
 ``FileNotFoundError`` (something missing) or ``ValueError`` (something malformed). The check is cheap so

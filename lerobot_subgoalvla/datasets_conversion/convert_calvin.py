@@ -1,4 +1,5 @@
-"""Convert CALVIN's native dataset into LeRobotDataset v3 with subgoal traces (data contract, DESIGN.md).
+"""Convert CALVIN's native dataset into LeRobotDataset v3 with subgoal traces (the data contract:
+``contract/``).
 
 Examples::
 

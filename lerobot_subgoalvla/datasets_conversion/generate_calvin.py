@@ -1,4 +1,4 @@
-"""Generate a CALVIN-format play dataset in our simulation with the scripted expert (calvin-spec.md 1).
+"""Generate a CALVIN-format play dataset in our simulation with the scripted expert (docs/calvin.md 1).
 
 Examples::
 

@@ -8,7 +8,7 @@ post-processor -> ``env.step``) and, at every step where a new chunk was planned
 ``observation.state`` with, then draws it over the static camera image with ``render_trace``.
 
 It is the one module that imports both the policy and the simulator (the policy and the envs never import each
-other, DESIGN.md); nothing imports it.
+other); nothing imports it.
 
 Command::
 

@@ -1,4 +1,4 @@
-"""CALVIN's LH-MTLC chain generator against the check values of calvin-spec.md 4.1-4.2, and its CLI."""
+"""CALVIN's LH-MTLC chain generator against the check values of docs/calvin.md 4.1-4.2, and its CLI."""
 
 from __future__ import annotations
 

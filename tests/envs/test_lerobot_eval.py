@@ -1,7 +1,7 @@
 """The env/eval contract: lerobot's eval loop over CalvinEnvConfig's task_id-per-chain envs.
 
 - In process, with a scripted oracle: ``avg_sum_reward`` is the mean number of completed subtasks and
-  ``pc_success`` the 5/5 rate, chain by chain (plugin guide 3.3-3.4).
+  ``pc_success`` the 5/5 rate, chain by chain.
 - End to end, ``lerobot-eval --env.type=calvin`` in a subprocess with a saved LeRobot policy (ACT, random tiny
   weights; the env contract does not depend on the policy; and, marked slow, a tiny SubgoalVLA checkpoint):
   one task_id per chain, ``eval_info.json``'s ``avg_sum_reward`` equals the mean ``num_completed`` of the

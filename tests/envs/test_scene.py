@@ -1,5 +1,5 @@
 """Scene: table links and joints, button/switch/light logic, geometry, random reset, CALVIN scenes
-(calvin-spec 3)."""
+(docs/calvin.md 3)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""CalvinSimulation: determinism, reset from state, action semantics, cameras, info, errors (calvin-spec
+"""CalvinSimulation: determinism, reset from state, action semantics, cameras, info, errors (docs/calvin.md
 1.4-3.8)."""
 
 from __future__ import annotations

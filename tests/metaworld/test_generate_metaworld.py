@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from pathlib import Path
 
 import numpy as np
@@ -28,32 +27,6 @@ PUBLISHED_FEATURES = {  # lerobot/metaworld_mt50 meta/info.json (codebase v3.0):
     "next.success": ("bool", (1,)),
     "task_id": ("int16", (1,)),
 }
-
-
-@pytest.fixture(scope="module")
-def metaworld_renders() -> None:
-    """Skip (one line) unless Meta-World is installed and LeRobot's Meta-World env renders a frame."""
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    try:
-        tasks.require_metaworld()
-    except RuntimeError as error:
-        pytest.skip(f"Meta-World unavailable: {error}")
-    from lerobot_subgoalvla.metaworld.record import MetaworldRecorder
-
-    try:
-        with MetaworldRecorder("reach-v3") as recorder:
-            obs, _ = recorder.env.reset(seed=0)
-            assert obs["pixels"].shape == (480, 480, 3)
-    except Exception as error:  # noqa: BLE001 - any GL/MuJoCo failure means "cannot render here"
-        pytest.skip(f"MuJoCo cannot render here (MUJOCO_GL={os.environ['MUJOCO_GL']}): {error}")
-
-
-@pytest.fixture(scope="module")
-def generated(metaworld_renders: None, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One successful reach-v3 episode written by the command's Python entry point."""
-    output = tmp_path_factory.mktemp("metaworld") / "reach"
-    options = gen.GenerateOptions(("reach-v3",), episodes_per_task=1, seed=0, image_format="image")
-    return gen.generate(output, REPO_ID, options, workers=1)
 
 
 def _dataset(root: Path):

@@ -1,7 +1,8 @@
-"""``--env.type=calvin``: CALVIN as a LeRobot 0.6 environment (plugin guide section 3).
+"""``--env.type=calvin``: CALVIN as a LeRobot 0.6 environment.
 
 ``CalvinEnvConfig.create_envs`` returns ``{"calvin": {task_id: VectorEnv}}``. In the long-horizon mode
-(``task="lh_mtlc"``, CALVIN's evaluation protocol, calvin-spec section 4) there is one ``task_id`` per chain,
+(``task="lh_mtlc"``, CALVIN's evaluation protocol, docs/calvin.md section 4) there is one ``task_id`` per
+chain,
 equal to the chain id, so ``lerobot-eval --eval.n_episodes=1`` runs every chain of ``[chain_start,
 chain_stop)`` exactly once; disjoint chain ranges shard an evaluation across processes or machines. In the
 single-task mode (``task=<one of the 34 task names>``) there is one ``task_id``, the task's CALVIN id, and
@@ -237,7 +238,7 @@ class CalvinEnvConfig(EnvConfig):
         }
 
     def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, Any]]:
-        """Build ``{"calvin": {task_id: vector env}}`` (plugin guide 3.1, 3.4).
+        """Build ``{"calvin": {task_id: vector env}}``.
 
         Args:
             n_envs: Sub-envs per vector env (``--eval.batch_size``).

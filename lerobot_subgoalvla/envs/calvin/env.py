@@ -1,13 +1,13 @@
 """``CalvinEnv``: CALVIN as a gymnasium 1.x environment, single tasks or CALVIN's five-task chains.
 
-Two modes, chosen by ``task`` (DESIGN.md, "The CALVIN environment"; calvin-spec section 4):
+Two modes, chosen by ``task`` (docs/calvin.md section 4):
 
 - ``"lh_mtlc"``: one episode is one evaluation chain. Reset puts the robot at ``EVAL_ROBOT_OBS`` and the
   scene at the chain's ``scene_obs`` (spec 4.2). ``task_description`` is CALVIN's evaluation instruction of
   the *current* subtask and switches as soon as a subtask is completed; the oracle checks only that subtask,
   between the info captured when it started and the current info (spec 4.3). Reward 1 per completed subtask,
   so LeRobot's ``avg_sum_reward`` is CALVIN's average sequence length; ``is_success`` only for 5/5, so
-  ``pc_success`` is the 5-chain success rate (plugin guide 3.4).
+  ``pc_success`` is the 5-chain success rate.
 - a task name (one of the 34): reset to a random start from which the task is feasible; the episode ends
   with the first success (reward 1, ``is_success``) or after ``episode_length`` steps.
 
@@ -23,7 +23,7 @@ Spaces (S = static image side, G = gripper image side):
 | action, absolute | Box((-inf x6, -1), (inf x6, 1), float32) | tcp pos (m), tcp euler (rad), gripper |
 
 The simulator is created on the first ``reset`` (never in ``__init__``), so constructing the env is cheap and
-forkserver workers build their own PyBullet client (plugin guide 3.2).
+forkserver workers build their own PyBullet client.
 """
 
 from __future__ import annotations

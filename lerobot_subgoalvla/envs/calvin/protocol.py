@@ -8,11 +8,11 @@ from __future__ import annotations
 
 #: The long-horizon multi-task language-control protocol: one episode = one chain of five subtasks.
 LH_MTLC = "lh_mtlc"
-#: Number of chains of CALVIN's official evaluation (calvin-spec 4.1).
+#: Number of chains of CALVIN's official evaluation (docs/calvin.md 4.1).
 NUM_EVAL_CHAINS = 1000
-#: Subtasks per evaluation chain (calvin-spec 4.1).
+#: Subtasks per evaluation chain (docs/calvin.md 4.1).
 CHAIN_LENGTH = 5
-#: CALVIN's per-subtask step budget EP_LEN (calvin-spec 4.3).
+#: CALVIN's per-subtask step budget EP_LEN (docs/calvin.md 4.3).
 CALVIN_EP_LEN = 360
 SCENES: tuple[str, ...] = ("procedural", "calvin_A", "calvin_B", "calvin_C", "calvin_D")
 ACTION_MODES: tuple[str, ...] = ("relative", "absolute")

@@ -60,7 +60,7 @@ def make_frozen_env(**kwargs: Any) -> gym.Env:
     """A ``CalvinEnv(**kwargs)`` wrapped in ``FrozenAfterEpisodeEnd``.
 
     Module-level so that ``functools.partial(make_frozen_env, ...)`` pickles with the standard pickle, as
-    forkserver workers need (plugin guide pitfall 21).
+    forkserver workers need.
     """
     from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
 
@@ -72,7 +72,7 @@ class SharedVectorEnvs:
 
     ``lerobot-eval`` runs task_ids sequentially in one thread, or ``max_parallel_tasks`` at a time in a thread
     pool; keying by thread gives each concurrently evaluated task its own simulators. Autoreset is
-    ``NEXT_STEP`` with ``FrozenAfterEpisodeEnd`` sub-envs, as LeRobot recommends (plugin guide 3.2).
+    ``NEXT_STEP`` with ``FrozenAfterEpisodeEnd`` sub-envs, as LeRobot recommends.
     """
 
     def __init__(self, env_fns: list[Callable[[], gym.Env]], use_async: bool) -> None:

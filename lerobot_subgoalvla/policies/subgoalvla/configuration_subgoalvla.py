@@ -298,8 +298,7 @@ class SubgoalVLAConfig(DatasetFitting, PreTrainedConfig):
         return None
 
     def get_optimizer_preset(self) -> AdamWConfig:
-        """AdamW; per-group learning rates come from ``SubgoalVLAPolicy.get_optim_params`` (plugin guide
-        2.7)."""
+        """AdamW; per-group learning rates come from ``SubgoalVLAPolicy.get_optim_params``."""
         return AdamWConfig(
             lr=self.optimizer_lr_heads,
             betas=self.optimizer_betas,

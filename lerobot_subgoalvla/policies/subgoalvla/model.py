@@ -1,4 +1,4 @@
-"""SubgoalVLAModel: the math-only core of the policy (paper section 4, appendix B; DESIGN.md "The model").
+"""SubgoalVLAModel: the math-only core of the policy (paper section 4, appendix B; docs/model.md).
 
 ::
 

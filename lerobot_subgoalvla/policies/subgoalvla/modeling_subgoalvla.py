@@ -7,7 +7,7 @@ The policy is thin: the computation lives in ``model.py``; this module does the 
   resumed run or a reloaded checkpoint continues in the right stage, and one ``lerobot-train`` run can switch
   from stage I to stage II at ``stage2_start_step``.
 - Optimizer groups (appendix C, table 8): heads 1e-4, projector 1e-5, LLM 2e-5; the frozen vision tower is in
-  no group. LeRobot only uses these groups through the policy's optimizer preset (plugin guide 2.7). The heads
+  no group. LeRobot only uses these groups through the policy's optimizer preset. The heads
   come first because LeRobot logs ``param_groups[0]``'s learning rate, which is then the scheduler's peak.
 - Inference (``select_action``): the state history the model needs is built online from the normalised states
   with :class:`StateHistoryBuffer` (the same window and clamping as the dataset's

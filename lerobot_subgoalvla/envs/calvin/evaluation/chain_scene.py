@@ -1,4 +1,4 @@
-"""Symbolic chain states -> simulator states (calvin-spec 4.2): the fixed robot start and each chain's
+"""Symbolic chain states -> simulator states (docs/calvin.md 4.2): the fixed robot start and each chain's
 scene_obs.
 
 Split from ``chains.py`` (the chain sampler) by concern. The block layout of a symbolic state is seeded with

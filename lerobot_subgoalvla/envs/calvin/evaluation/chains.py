@@ -1,7 +1,7 @@
 """CALVIN's long-horizon evaluation (LH-MTLC): the five-task chains and their per-episode results.
 
 Clean-room re-implementation of calvin_agent ``evaluation/multistep_sequences.py`` (``get_sequences``) and
-``evaluation/utils.py`` (``get_env_state_for_initial_condition``), calvin-spec.md sections 4.1-4.2. The output
+``evaluation/utils.py`` (``get_env_state_for_initial_condition``), docs/calvin.md sections 4.1-4.2. The output
 is identical, chain by chain, to CALVIN's official 1000 chains (spec 4.1 check values are the tests):
 
 1. 192 symbolic initial states: the product of :data:`SYMBOLIC_VALUES` in key order, kept iff one or two
@@ -44,7 +44,7 @@ from lerobot_subgoalvla.calvin_vocab import BLOCK_COLORS, TASK_NAMES, check_task
 from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, user_errors
 
 # The symbolic -> simulator mapping lives in chain_scene.py and per-episode results in results.py; both are
-# re-exported here because chains.py is the env's seam (DESIGN.md).
+# re-exported here because chains.py is the env's seam (docs/architecture.md).
 from lerobot_subgoalvla.envs.calvin.evaluation.chain_scene import (
     EVAL_ROBOT_OBS,
     SYMBOLIC_VALUES,
@@ -53,7 +53,8 @@ from lerobot_subgoalvla.envs.calvin.evaluation.chain_scene import (
     state_seed,
 )
 
-# Per-episode results live in results.py; re-exported here because chains.py is the env's seam (DESIGN.md).
+# Per-episode results live in results.py; re-exported here because chains.py is the env's seam
+# (docs/architecture.md).
 from lerobot_subgoalvla.envs.calvin.evaluation.results import (
     EpisodeResult,
     append_episode_result,

@@ -1,4 +1,4 @@
-"""``subgoalvla-calvin-report``: CALVIN's long-horizon metrics from per-episode results (calvin-spec.md 4.4).
+"""``subgoalvla-calvin-report``: CALVIN's long-horizon metrics from per-episode results (docs/calvin.md 4.4).
 
 Reads the results of one or several shards - JSON lines written by the env (``--env.results_path``) or the
 ``eval_info.json`` of ``lerobot-eval`` - merges them by chain id (a chain seen twice is an error) and reports

@@ -1,13 +1,13 @@
 """Per-episode results of CALVIN's long-horizon evaluation: records, JSON lines, shards, lerobot-eval import.
 
-One :class:`EpisodeResult` per evaluated chain (calvin-spec.md 4.3): how many of its five subtasks were
+One :class:`EpisodeResult` per evaluated chain (docs/calvin.md 4.3): how many of its five subtasks were
 completed in a row before the first failure. Two sources produce them:
 
 - the env, when given a ``results_path``, appends one JSON line per finished chain
   (:func:`append_episode_result`);
 - lerobot-eval's ``eval_info.json``, where each chain is one ``task_id`` and
-  ``per_task[*].metrics.sum_rewards`` holds the completed-subtask count (reward 1 per subtask; plugin guide
-  3.4), via :func:`episode_results_from_eval_info`.
+  ``per_task[*].metrics.sum_rewards`` holds the completed-subtask count (reward 1 per subtask), via
+  :func:`episode_results_from_eval_info`.
 
 Chains can be evaluated in shards (ranges of chain ids, on several processes or machines);
 :func:`merge_results` joins the shards by ``chain_id`` and refuses duplicates, so no chain is counted twice.

@@ -1,4 +1,5 @@
-"""Scripted expert for the 34 CALVIN tasks, from privileged simulator state (DESIGN.md, "expert" seam).
+"""Scripted expert for the 34 CALVIN tasks, from privileged simulator state (docs/architecture.md, the
+"expert" seam).
 
 ``ScriptedExpert(sim, task, np_random)`` picks the script of the task's family (``expert_tasks``,
 ``expert_fixtures``) and yields one relative action per ``act()`` call; the caller steps the sim, so a data

@@ -1,7 +1,7 @@
 """CALVIN's success oracle: which of the 34 tasks were completed between two info snapshots.
 
 Clean-room re-implementation of calvin_env ``envs/tasks.py`` + ``conf/tasks/new_playtable_tasks.yaml``
-(calvin-spec.md sections 2.1-2.3; identical in calvin_env ``1431a46`` and ``797142c``). Every predicate,
+(docs/calvin.md sections 2.1-2.3; identical in calvin_env ``1431a46`` and ``797142c``). Every predicate,
 threshold and strict/non-strict comparison is CALVIN's, quirks included, because benchmark numbers depend on
 them:
 
@@ -50,7 +50,7 @@ def _lookup(info: Info, *path: str) -> Any:
             where = ".".join(path[: depth + 1])
             raise ValueError(
                 f"Info dict lacks {where!r}; the oracle expects CalvinSimulation.get_info()'s structure "
-                "(calvin-spec.md 2.1)"
+                "(docs/calvin.md 2.1)"
             )
         node = node[key]
     return node

@@ -1,4 +1,5 @@
-"""Scene sources: what to load for ``procedural`` and for CALVIN's scenes A-D (calvin-spec sections 3.1-3.4).
+"""Scene sources: what to load for ``procedural`` and for CALVIN's scenes A-D (docs/calvin.md sections
+3.1-3.4).
 
 A :class:`SceneSource` names every file and number a :class:`~.scene.Scene` needs; the rest of the code is
 shared.

@@ -1,4 +1,5 @@
-"""CALVIN's static and gripper RGB cameras (calvin-spec section 3.6), rendered on the CPU with TinyRenderer.
+"""CALVIN's static and gripper RGB cameras (docs/calvin.md section 3.6), rendered on the CPU with
+TinyRenderer.
 
 | camera  | default size | vertical fov | near / far | pose |
 |---------|--------------|--------------|------------|------|

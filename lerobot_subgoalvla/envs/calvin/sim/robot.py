@@ -1,4 +1,4 @@
-"""Franka Panda controlled by inverse kinematics to a TCP pose, as CALVIN's ``Robot`` (calvin-spec section
+"""Franka Panda controlled by inverse kinematics to a TCP pose, as CALVIN's ``Robot`` (docs/calvin.md section
 3.5).
 
 Two URDFs, one behaviour:

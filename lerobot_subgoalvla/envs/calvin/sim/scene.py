@@ -1,4 +1,4 @@
-"""The play-table scene: blocks, table (doors, button + LED, switch + lightbulb) and plane (calvin-spec
+"""The play-table scene: blocks, table (doors, button + LED, switch + lightbulb) and plane (docs/calvin.md
 3.1-3.4, 3.8).
 
 One code path for every :class:`~.assets.SceneSource`: the procedural desk and CALVIN's tables A-D are both

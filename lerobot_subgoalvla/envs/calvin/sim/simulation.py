@@ -1,4 +1,4 @@
-"""``CalvinSimulation``: CALVIN's play-table simulator on its own pybullet client (calvin-spec section 3).
+"""``CalvinSimulation``: CALVIN's play-table simulator on its own pybullet client (docs/calvin.md section 3).
 
 One instance = one ``BulletClient`` in DIRECT mode (no global pybullet connection), so several simulations
 live side by side in one process (vector envs, expert + evaluation). Physics as CALVIN (spec 3.7): gravity
