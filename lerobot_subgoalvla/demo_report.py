@@ -100,13 +100,17 @@ def episode_successes(info: dict[str, Any]) -> list[bool]:
     return [bool(s) for entry in info["per_task"] for s in entry["metrics"]["successes"]]
 
 
+def _task_dirs(eval_dir: Path) -> list[str]:
+    """The evaluated tasks: CALVIN's in CALVIN's order, then any other benchmark's (Meta-World) by name."""
+    found = {p.parent.name for p in Path(eval_dir).glob("*/eval_info.json")} - {LH_MTLC_DIR}
+    return [t for t in TASK_NAMES if t in found] + sorted(found - set(TASK_NAMES))
+
+
 def read_task_results(eval_dir: Path) -> dict[str, dict[str, Any]]:
-    """Task -> successes/episodes/interval/videos from each ``<task>/eval_info.json`` (CALVIN task order)."""
+    """Task -> successes/episodes/interval/videos from each ``<task>/eval_info.json``."""
     results = {}
-    for task in TASK_NAMES:
+    for task in _task_dirs(eval_dir):
         path = Path(eval_dir) / task / "eval_info.json"
-        if not path.is_file():
-            continue
         info = json.loads(path.read_text())
         successes = episode_successes(info)
         low, high = wilson_interval(sum(successes), len(successes))
