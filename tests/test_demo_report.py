@@ -78,7 +78,13 @@ def test_report_has_success_per_task_chains_and_curves(tmp_path: Path) -> None:
 
 
 def test_cli_refuses_a_missing_eval_dir(tmp_path: Path, caplog) -> None:
-    assert (
-        demo_report.main(["--eval-dir", str(tmp_path / "nope"), "--output-dir", str(tmp_path / "out")]) == 1
-    )
+    with pytest.raises(SystemExit) as exit_info:  # one line and exit 1, as every subgoalvla-* command
+        demo_report.main(["--eval-dir", str(tmp_path / "nope"), "--output-dir", str(tmp_path / "out")])
+    assert exit_info.value.code == 1
     assert "--eval-dir" in caplog.text and not (tmp_path / "out").exists()
+
+
+def test_cli_usage_errors_are_one_line_not_argparse_usage(tmp_path: Path, caplog) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        demo_report.main(["--output-dir", str(tmp_path / "out")])  # --eval-dir missing
+    assert exit_info.value.code == 1 and "the following arguments are required: --eval-dir" in caplog.text

@@ -110,7 +110,7 @@ def test_sub_env_factory_pickles_with_the_standard_pickle() -> None:
 def test_create_envs_single_task_uses_the_calvin_task_id() -> None:
     cfg = CalvinEnvConfig(task="turn_on_led", static_image_size=16, gripper_image_size=16)
     envs = cfg.create_envs(n_envs=1)
-    assert list(envs["calvin"]) == [TASK_NAMES.index("turn_on_led")]
+    assert list(envs["calvin_turn_on_led"]) == [TASK_NAMES.index("turn_on_led")]
 
 
 def test_each_evaluating_thread_gets_its_own_vector_env() -> None:

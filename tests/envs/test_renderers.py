@@ -100,7 +100,7 @@ def test_env_config_spreads_egl_workers_over_the_listed_cuda_devices() -> None:
     with pytest.raises(ConfigError, match="non-empty list of CUDA indices"):
         CalvinEnvConfig(task="open_drawer", renderer="egl", egl_cuda_devices=[])
     cfg = CalvinEnvConfig(task="open_drawer", renderer="egl", egl_cuda_devices=[0, 1])
-    views = cfg.create_envs(n_envs=3)["calvin"]
+    views = cfg.create_envs(n_envs=3)["calvin_open_drawer"]
     shared = next(iter(views.values()))._shared
     try:
         assert [fn.keywords["egl_cuda_device"] for fn in shared.env_fns] == [0, 1, 0]

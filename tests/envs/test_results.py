@@ -93,6 +93,15 @@ def test_eval_info_import() -> None:
         ({"task_id": 0, "metrics": {"sum_rewards": [6.0]}}, "num_completed"),
         # what a single-task run (--env.task=open_drawer, task_id 14 = its CALVIN id) writes: not a chain
         ({"task_id": 0, "metrics": {"sum_rewards": [1.0], "successes": [True]}}, "single-task evaluation"),
+        # a failed single-task episode (0 completed, no success) looks like a chain but for its group name
+        (
+            {
+                "task_group": "calvin_open_drawer",
+                "task_id": 0,
+                "metrics": {"sum_rewards": [0.0], "successes": [False]},
+            },
+            "single-task evaluation, not LH-MTLC chains",
+        ),
     ],
 )
 def test_eval_info_errors(entry: dict, match: str) -> None:

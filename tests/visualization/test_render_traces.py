@@ -160,3 +160,15 @@ def test_cli_refuses_a_checkpoint_of_another_policy_type(tmp_path: Path, caplog)
     assert exit_info.value.code == 1
     assert "a 'act' checkpoint; only SubgoalVLA predicts subgoal traces" in caplog.text
     assert not (tmp_path / "a.png").exists()
+
+
+@pytest.mark.parametrize("module", ["render_traces", "dataset_traces"])
+def test_usage_errors_are_one_line_and_exit_1(module: str, caplog) -> None:
+    """A missing flag is one log line and exit 1, as in every subgoalvla-* command (not argparse's usage)."""
+    import importlib
+
+    command = importlib.import_module(f"lerobot_subgoalvla.visualization.{module}")
+    with pytest.raises(SystemExit) as exit_info:
+        command.main([])
+    assert exit_info.value.code == 1
+    assert "the following arguments are required" in caplog.text and "usage:" not in caplog.text

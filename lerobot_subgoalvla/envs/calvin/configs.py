@@ -238,7 +238,9 @@ class CalvinEnvConfig(EnvConfig):
         }
 
     def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, Any]]:
-        """Build ``{"calvin": {task_id: vector env}}``.
+        """Build ``{"calvin": {chain_id: vector env}}`` for ``lh_mtlc``, ``{"calvin_<task>": {task_id: ...}}``
+        for one task: the group name in ``eval_info.json`` then says which was evaluated (a single-task result
+        must never pass for a chain in ``subgoalvla-calvin-report``).
 
         Args:
             n_envs: Sub-envs per vector env (``--eval.batch_size``).
@@ -271,6 +273,5 @@ class CalvinEnvConfig(EnvConfig):
             for i in range(n_envs)
         ]
         shared = SharedVectorEnvs(env_fns, use_async_envs and n_envs > 1)
-        return {
-            self.type: {task_id: TaskView(shared, options, *spaces) for task_id, options in pinned.items()}
-        }
+        suite = self.type if self.task == LH_MTLC else f"{self.type}_{self.task}"
+        return {suite: {task_id: TaskView(shared, options, *spaces) for task_id, options in pinned.items()}}

@@ -99,6 +99,10 @@ class EpisodeResult:
         return result
 
 
+#: lerobot-eval's task group of LH-MTLC chains (``CalvinEnvConfig.create_envs``; one task is "calvin_<task>").
+CHAIN_TASK_GROUP = "calvin"
+
+
 def append_episode_result(path: Path, result: EpisodeResult) -> None:
     """Append one JSON line (a single write, so concurrent appenders do not interleave lines)."""
     path = Path(path)
@@ -188,6 +192,12 @@ def episode_results_from_eval_info(
         raise ValueError("eval_info has no 'per_task' list; pass the eval_info.json that lerobot-eval wrote")
     results = []
     for entry in eval_info["per_task"]:
+        group = entry.get("task_group", CHAIN_TASK_GROUP) if isinstance(entry, Mapping) else CHAIN_TASK_GROUP
+        if group != CHAIN_TASK_GROUP:
+            raise ValueError(
+                f"eval_info task group {group!r} is a single-task evaluation, not LH-MTLC chains; the report "
+                "needs lerobot-eval --env.task=lh_mtlc (or its --env.results_path JSON lines)"
+            )
         try:
             chain_id, sums = int(entry["task_id"]), entry["metrics"]["sum_rewards"]
         except (KeyError, TypeError, ValueError) as err:
