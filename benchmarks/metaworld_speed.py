@@ -31,8 +31,9 @@ import numpy as np
 import torch
 import torch.nn.functional as F  # noqa: N812 - the usual alias
 
+from lerobot_subgoalvla.contract.keys import SINGLE_IMAGE_KEY as IMAGE_KEY
 from lerobot_subgoalvla.metaworld.generate import FPS, ROBOT_TYPE, features
-from lerobot_subgoalvla.metaworld.record import IMAGE_KEY, Episode, MetaworldRecorder
+from lerobot_subgoalvla.metaworld.record import Episode, MetaworldRecorder
 from lerobot_subgoalvla.metaworld.tasks import task_description
 
 PARTS = ("render", "physics", "expert", "env", "write")

@@ -57,6 +57,7 @@ import numpy as np
 from tqdm import tqdm
 
 from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, require_at_least, user_errors
+from lerobot_subgoalvla.contract.keys import ACTION_KEY, ENV_STATE_KEY, SINGLE_IMAGE_KEY, STATE_KEY
 from lerobot_subgoalvla.metaworld.tasks import parse_tasks, require_metaworld, task_description, task_id
 
 logger = logging.getLogger(__name__)
@@ -121,11 +122,11 @@ class PartJob:
 def features(image_size: int, image_format: str) -> dict[str, dict]:
     """The published ``lerobot/metaworld_mt50`` schema (names as published; images height-width-channels)."""
     return {
-        "observation.image": {"dtype": image_format, "shape": (image_size, image_size, 3),
-                              "names": ["height", "width", "channels"]},
-        "observation.state": {"dtype": "float32", "shape": (4,), "names": {"axes": None}},
-        "observation.environment_state": {"dtype": "float32", "shape": (39,), "names": ["keypoints"]},
-        "action": {"dtype": "float32", "shape": (4,), "names": {"axes": ["x", "y", "z", "gripper"]}},
+        SINGLE_IMAGE_KEY: {"dtype": image_format, "shape": (image_size, image_size, 3),
+                           "names": ["height", "width", "channels"]},
+        STATE_KEY: {"dtype": "float32", "shape": (4,), "names": {"axes": None}},
+        ENV_STATE_KEY: {"dtype": "float32", "shape": (39,), "names": ["keypoints"]},
+        ACTION_KEY: {"dtype": "float32", "shape": (4,), "names": {"axes": ["x", "y", "z", "gripper"]}},
         "next.reward": {"dtype": "float32", "shape": (1,), "names": None},
         "next.success": {"dtype": "bool", "shape": (1,), "names": None},
         "task_id": {"dtype": "int16", "shape": (1,), "names": None},

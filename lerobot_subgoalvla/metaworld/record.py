@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from lerobot_subgoalvla.contract.keys import ACTION_KEY, ENV_STATE_KEY, SINGLE_IMAGE_KEY, STATE_KEY
 from lerobot_subgoalvla.metaworld.tasks import expert_policy, task_description, task_id
 
 logger = logging.getLogger(__name__)
@@ -39,7 +40,6 @@ logger = logging.getLogger(__name__)
 LEROBOT_IMAGE_SIZE = 480
 #: The published dataset's and LeRobot's env's frame rate.
 METAWORLD_FPS = 80
-IMAGE_KEY = "observation.image"
 
 
 @dataclass
@@ -166,10 +166,10 @@ class MetaworldRecorder:
         """Per-step lists -> ``{feature key: (T, ...) array}`` in the published dataset's dtypes."""
         length = len(rows["action"])
         return {
-            IMAGE_KEY: np.stack(rows["image"]).astype(np.uint8),  # (T, S, S, 3)
-            "observation.state": np.stack(rows["state"]).astype(np.float32),  # (T, 4)
-            "observation.environment_state": np.stack(rows["env_state"]).astype(np.float32),  # (T, 39)
-            "action": np.stack(rows["action"]),  # (T, 4)
+            SINGLE_IMAGE_KEY: np.stack(rows["image"]).astype(np.uint8),  # (T, S, S, 3)
+            STATE_KEY: np.stack(rows["state"]).astype(np.float32),  # (T, 4)
+            ENV_STATE_KEY: np.stack(rows["env_state"]).astype(np.float32),  # (T, 39)
+            ACTION_KEY: np.stack(rows["action"]),  # (T, 4)
             "next.reward": np.asarray(rows["reward"], dtype=np.float32)[:, None],  # (T, 1)
             "next.success": np.asarray(rows["done"], dtype=bool)[:, None],  # (T, 1)
             "task_id": np.full((length, 1), self.task_id, dtype=np.int16),  # (T, 1)

@@ -36,6 +36,7 @@ from lerobot.policies import get_policy_class, make_pre_post_processors
 from lerobot_subgoalvla.calvin_vocab import TASK_NAMES
 from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, user_errors
 from lerobot_subgoalvla.contract.calvin import GRIPPER_CAMERA_KEY, STATIC_CAMERA_KEY
+from lerobot_subgoalvla.contract.keys import TASK_KEY
 from lerobot_subgoalvla.envs.calvin.env import CalvinEnv
 from lerobot_subgoalvla.envs.calvin.protocol import LH_MTLC, SCENES
 from lerobot_subgoalvla.policies.subgoalvla.proprio_normalization import ProprioNormalizerProcessorStep
@@ -98,7 +99,7 @@ def rollout_with_traces(
     frames: list[np.ndarray] = []
     for step in range(num_steps):
         batch = preprocess_observation(observation)  # (1, ...) tensors, images CHW in [0, 1]
-        batch = preprocessor({**batch, "task": [env.task_description]})
+        batch = preprocessor({**batch, TASK_KEY: [env.task_description]})
         previous = policy.last_subgoal_trace
         with torch.inference_mode():
             action = postprocessor(policy.select_action(batch))  # (1, A)
