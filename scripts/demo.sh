@@ -16,6 +16,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup_venv.sh
+source scripts/train_stage.sh
 # One thread per process: on 2 cores the trainer and its data worker would otherwise oversubscribe (up to 20x
 # slower updates when anything else runs).
 export MPLBACKEND=Agg OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
@@ -61,17 +62,11 @@ fi
 
 stage "3/5 train SubgoalVLA ($PRESET preset, $STEPS steps x batch $BATCH) -> $OUT/train (log: $OUT/train.log)"
 CKPT="$OUT/train/checkpoints/last/pretrained_model"
-if [ -f "$CKPT/train_config.json" ] && [ ! -f "$OUT/train/.done" ]; then
-    lerobot-train --config_path="$CKPT/train_config.json" --resume=true 2>&1 | tee -a "$OUT/train.log"
-elif [ ! -f "$OUT/train/.done" ]; then
-    rm -rf "$OUT/train"
-    lerobot-train --policy.type=subgoalvla --policy.preset="$PRESET" --policy.push_to_hub=false \
-        --policy.device="$DEVICE" --policy.stage2_start_step=$((STEPS * 4 / 5)) \
-        --dataset.repo_id=local/calvin_demo --dataset.root="$OUT/dataset" --dataset.video_backend=pyav \
-        --output_dir="$OUT/train" --steps="$STEPS" --batch_size="$BATCH" --num_workers=1 \
-        --log_freq=50 --save_freq=$((STEPS / 4)) --seed=0 --wandb.enable=false 2>&1 | tee "$OUT/train.log"
-fi
-touch "$OUT/train/.done"
+resumable_train "$OUT/train" "$OUT/train.log" --policy.type=subgoalvla --policy.preset="$PRESET" \
+    --policy.push_to_hub=false --policy.device="$DEVICE" --policy.stage2_start_step=$((STEPS * 4 / 5)) \
+    --dataset.repo_id=local/calvin_demo --dataset.root="$OUT/dataset" --dataset.video_backend=pyav \
+    --steps="$STEPS" --batch_size="$BATCH" --num_workers=1 --log_freq=50 --save_freq=$((STEPS / 4)) --seed=0 \
+    --wandb.enable=false
 
 stage "4/5 evaluate: ${#FIXTURE_TASKS[@]} fixture tasks x $EPISODES episodes, then $CHAINS LH-MTLC chains -> $OUT/eval"
 for task in "${FIXTURE_TASKS[@]}"; do

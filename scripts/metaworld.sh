@@ -16,6 +16,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup_venv.sh
+source scripts/train_stage.sh
 export MPLBACKEND=Agg MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE="${HF_HUB_OFFLINE:-1}"
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
 
@@ -44,17 +45,11 @@ stage "2/5 add state history and subgoal traces -> $OUT/dataset"
 
 stage "3/5 train SubgoalVLA (laptop preset, $STEPS steps x 32) -> $OUT/train (log: $OUT/train.log)"
 CKPT="$OUT/train/checkpoints/last/pretrained_model"
-if [ -f "$CKPT/train_config.json" ] && [ ! -f "$OUT/train/.done" ]; then
-    lerobot-train --config_path="$CKPT/train_config.json" --resume=true 2>&1 | tee -a "$OUT/train.log"
-elif [ ! -f "$OUT/train/.done" ]; then
-    rm -rf "$OUT/train"
-    lerobot-train --policy.type=subgoalvla --policy.preset=laptop --policy.push_to_hub=false \
-        --policy.device=cpu --policy.stage2_start_step=$((STEPS * 4 / 5)) \
-        --dataset.repo_id="$REPO" --dataset.root="$OUT/dataset" --dataset.video_backend=pyav \
-        --output_dir="$OUT/train" --steps="$STEPS" --batch_size=32 --num_workers=1 \
-        --log_freq=50 --save_freq=$((STEPS / 4)) --seed=0 --wandb.enable=false 2>&1 | tee "$OUT/train.log"
-fi
-touch "$OUT/train/.done"
+resumable_train "$OUT/train" "$OUT/train.log" --policy.type=subgoalvla --policy.preset=laptop \
+    --policy.push_to_hub=false --policy.device=cpu --policy.stage2_start_step=$((STEPS * 4 / 5)) \
+    --dataset.repo_id="$REPO" --dataset.root="$OUT/dataset" --dataset.video_backend=pyav \
+    --steps="$STEPS" --batch_size=32 --num_workers=1 --log_freq=50 --save_freq=$((STEPS / 4)) --seed=0 \
+    --wandb.enable=false
 
 stage "4/5 evaluate ${#TASKS[@]} tasks x $EVAL_EPISODES episodes in LeRobot's Meta-World env -> $OUT/eval"
 for task in "${TASKS[@]}"; do

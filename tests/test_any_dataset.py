@@ -11,14 +11,12 @@ machine, while the same call alone succeeded.
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
 from helpers.robot_datasets import make_robot_dataset_in_subprocess
+from helpers.tiny_training import train_tiny
 from lerobot.policies import make_pre_post_processors
 
 import lerobot_subgoalvla.plugin  # noqa: F401  (registers the policy type)
@@ -26,7 +24,6 @@ from lerobot_subgoalvla.contract.keys import TASK_KEY
 from lerobot_subgoalvla.datasets_conversion.add_traces import add_traces
 from lerobot_subgoalvla.policies.subgoalvla.modeling_subgoalvla import SubgoalVLAPolicy
 
-BIN = Path(sys.executable).parent
 ALOHA = {
     "observation.images.top": 24,
     "observation.images.left_wrist": 16,
@@ -38,22 +35,6 @@ CASES = {
     "arm_1cam_7d_video_angle": ({"observation.images.front": 64}, 7, 7, True, (6,)),
     "arm_2cam_7d_video": ({"observation.images.front": 64, "observation.images.wrist": 64}, 7, 4, True, ()),
 }
-
-
-def _train(dataset_root: Path, output_dir: Path) -> Path:
-    flags = [
-        "--policy.type=subgoalvla", "--policy.preset=tiny", "--policy.device=cpu",
-        "--policy.push_to_hub=false",
-        "--dataset.repo_id=local/robot", f"--dataset.root={dataset_root}", "--dataset.video_backend=pyav",
-        f"--output_dir={output_dir}", "--steps=2", "--batch_size=2", "--num_workers=0", "--save_freq=2",
-        "--wandb.enable=false",
-    ]  # fmt: skip
-    env = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
-    result = subprocess.run(
-        [str(BIN / "lerobot-train"), *flags], capture_output=True, text=True, env=env, timeout=400
-    )
-    assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
-    return output_dir / "checkpoints" / "last" / "pretrained_model"
 
 
 def _actions(checkpoint: Path, observation: dict) -> torch.Tensor:
@@ -71,7 +52,7 @@ def test_a_users_dataset_trains_saves_reloads_and_acts_the_same(case: str, tmp_p
     dataset = add_traces(
         "local/robot", tmp_path / "raw", tmp_path / "traces", angle_dims=angles, angle_home=home
     )
-    checkpoint = _train(dataset.root, tmp_path / "train")
+    checkpoint = train_tiny(dataset.root, "local/robot", tmp_path / "train")
     policy = SubgoalVLAPolicy.from_pretrained(checkpoint)
     assert policy.config.image_features_in_order == list(cameras)  # the dataset's order
     assert tuple(policy.config.state_angle_dims) == angles

@@ -8,17 +8,13 @@ every seam (the env's keys and instruction reach the policy, its actions reach t
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 from conftest import REPO_ID
+from helpers.tiny_training import train_tiny
 
 from lerobot_subgoalvla.datasets_conversion.add_traces import add_traces
-
-BIN = Path(sys.executable).parent
 
 
 @pytest.fixture(scope="module")
@@ -28,19 +24,7 @@ def checkpoint(generated: Path, tmp_path_factory: pytest.TempPathFactory) -> Pat
     work = tmp_path_factory.mktemp("subgoalvla_metaworld")
     overrides = {"trace_start": 14, "stride": 1}
     dataset = add_traces(REPO_ID, generated, work / "traces", window_overrides=overrides)
-    flags = [
-        "--policy.type=subgoalvla", "--policy.preset=tiny", "--policy.device=cpu",
-        "--policy.push_to_hub=false",
-        f"--dataset.repo_id={REPO_ID}", f"--dataset.root={dataset.root}", "--dataset.video_backend=pyav",
-        f"--output_dir={work / 'train'}", "--steps=2", "--batch_size=2", "--num_workers=0", "--save_freq=2",
-        "--wandb.enable=false",
-    ]  # fmt: skip
-    env = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
-    result = subprocess.run(
-        [str(BIN / "lerobot-train"), *flags], capture_output=True, text=True, env=env, timeout=400
-    )
-    assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
-    return work / "train" / "checkpoints" / "last" / "pretrained_model"
+    return train_tiny(dataset.root, REPO_ID, work / "train")
 
 
 def test_a_tiny_subgoalvla_runs_an_episode_in_lerobots_metaworld_env(checkpoint: Path) -> None:
