@@ -55,7 +55,7 @@ TORCH_DTYPES = ("float32", "bfloat16", "float16")
 
 @PreTrainedConfig.register_subclass("subgoalvla")
 @dataclass
-class SubgoalVLAConfig(DatasetFitting, PreTrainedConfig):
+class SubgoalVLAConfig(PreTrainedConfig, DatasetFitting):
     """SubgoalVLA: VLM backbone -> proprioceptive cross-attention -> DiT planner -> DiT action generator.
 
     How it fits a dataset or env (cameras, state, window, angles) is ``DatasetFitting``'s
@@ -282,6 +282,10 @@ class SubgoalVLAConfig(DatasetFitting, PreTrainedConfig):
                 raise ConfigError(f"--policy.backbone.layer must be >= 1, got {bb.layer}")
 
     # LeRobot contract
+    def validate_features(self) -> None:
+        """LeRobot's hook: cameras, state and action exist and fit (``DatasetFitting.check_features``)."""
+        self.check_features()
+
     # -----------------------------------------------------------------------------------------
     @property
     def observation_delta_indices(self) -> None:

@@ -46,7 +46,7 @@ class DatasetFitting:
         inputs = self.input_features or {}
         return [key for key, feature in inputs.items() if feature.type is FeatureType.VISUAL]
 
-    def validate_features(self) -> None:
+    def check_features(self) -> None:
         """Cameras, state and action exist and fit; history/trace inputs, when present, are state sequences.
 
         The state history and the subgoal trace are only needed for training; ``set_dataset_feature_metadata``
