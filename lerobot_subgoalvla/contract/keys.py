@@ -26,9 +26,3 @@ TRACE_COLUMNS = (STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY)
 TASK_KEY = "task"
 #: LeRobot's padding mask of the action chunk (``<key>_is_pad`` for keys with delta timestamps).
 ACTION_IS_PAD_KEY = ACTION_KEY + "_is_pad"
-
-
-def camera_name(key: str) -> str:
-    """The short name of a camera key: ``observation.images.static`` -> ``static``, ``observation.image`` ->
-    ``image``."""
-    return key.removeprefix(IMAGES_PREFIX).removeprefix(OBS_PREFIX)

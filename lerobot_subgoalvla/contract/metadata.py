@@ -17,15 +17,25 @@ top-level field of ``info.json`` is dropped with a warning at every load.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from lerobot_subgoalvla.contract.keys import SUBGOAL_TRACE_KEY
+from lerobot_subgoalvla.contract.keys import STATE_KEY, SUBGOAL_TRACE_KEY
 from lerobot_subgoalvla.contract.window import TraceWindow
 
 #: the key of the block inside the trace feature's ``info``.
 METADATA_KEY = "subgoalvla"
+
+
+def check_angle_dims(dims: Sequence[int], state_dim: int, source: str) -> None:
+    """ValueError, one line naming ``source``, when an angle index is outside a ``state_dim``-dim state."""
+    bad = [d for d in dims if not 0 <= d < state_dim]
+    if bad:
+        raise ValueError(
+            f"{source} {list(dims)} do not fit the {state_dim}-dim {STATE_KEY} (index {bad[0]} is out of "
+            f"range); give indices in 0..{state_dim - 1}, or [] for none"
+        )
 
 
 @dataclass(frozen=True)
@@ -57,12 +67,7 @@ class ProprioMetadata:
 
     def check_state_dim(self, state_dim: int, source: str) -> None:
         """Raise one line when an angle index does not exist in a ``state_dim``-dim state."""
-        bad = [d for d in self.angle_dims if not 0 <= d < state_dim]
-        if bad:
-            raise ValueError(
-                f"{source}: angle dims {list(self.angle_dims)} do not fit the {state_dim}-dim state "
-                f"(index {bad[0]} is out of range); give indices in 0..{state_dim - 1}"
-            )
+        check_angle_dims(self.angle_dims, state_dim, source)
 
     def to_info(self) -> dict[str, Any]:
         """The JSON block (see ``METADATA_KEY``)."""

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, user_errors
-from lerobot_subgoalvla.contract.keys import STATE_HISTORY_KEY, STATE_KEY, SUBGOAL_TRACE_KEY
+from lerobot_subgoalvla.contract.keys import STATE_HISTORY_KEY, STATE_KEY, SUBGOAL_TRACE_KEY, TRACE_COLUMNS
 from lerobot_subgoalvla.contract.metadata import ProprioMetadata
 from lerobot_subgoalvla.contract.window import PAPER_HISTORY_LENGTH, PAPER_TRACE_LENGTH, TraceWindow
 
@@ -162,7 +162,7 @@ def add_traces(
 
 def _check_input(features: dict[str, dict], root: Path) -> None:
     """One line naming every contract problem of the input dataset."""
-    present = [key for key in (STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY) if key in features]
+    present = [key for key in TRACE_COLUMNS if key in features]
     if present:
         raise ValueError(
             f"{root} already has {present}; SubgoalVLA trains on it as it is (to cut another window, start "

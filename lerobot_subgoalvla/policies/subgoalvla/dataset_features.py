@@ -24,8 +24,14 @@ from typing import Any
 from lerobot.configs import FeatureType
 
 from lerobot_subgoalvla.config_error import DatasetContractError
-from lerobot_subgoalvla.contract.keys import ACTION_KEY, STATE_HISTORY_KEY, STATE_KEY, SUBGOAL_TRACE_KEY
-from lerobot_subgoalvla.contract.metadata import ProprioMetadata
+from lerobot_subgoalvla.contract.keys import (
+    ACTION_KEY,
+    STATE_HISTORY_KEY,
+    STATE_KEY,
+    SUBGOAL_TRACE_KEY,
+    TRACE_COLUMNS,
+)
+from lerobot_subgoalvla.contract.metadata import ProprioMetadata, check_angle_dims
 
 logger = logging.getLogger(__name__)
 
@@ -72,7 +78,7 @@ class DatasetFitting:
         state_dim = inputs[STATE_KEY].shape[-1]
         if self.state_angle_dims is not None:
             _check_angle_dims(self.state_angle_dims, state_dim, "--policy.state_angle_dims")
-        for key in (STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY):
+        for key in TRACE_COLUMNS:
             if key in inputs:
                 self._check_sequence(key, tuple(inputs[key].shape), state_dim)
 
@@ -92,7 +98,7 @@ class DatasetFitting:
             )
             raise DatasetContractError(f"the training dataset lacks {', '.join(missing)}; {fix}")
         state_dim = tuple(features[STATE_KEY]["shape"])[-1]
-        for key in (STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY):
+        for key in TRACE_COLUMNS:
             self._check_sequence(key, tuple(features[key]["shape"]), state_dim)
         metadata = ProprioMetadata.from_features(features)
         if metadata is None:
@@ -152,12 +158,11 @@ def _adopt_angles(config: DatasetFitting, metadata: ProprioMetadata, state_dim: 
 
 
 def _check_angle_dims(dims: tuple[int, ...], state_dim: int, source: str) -> None:
-    bad = [d for d in dims if not 0 <= d < state_dim]
-    if bad:
-        raise DatasetContractError(
-            f"{source} {list(dims)} do not fit the {state_dim}-dim {STATE_KEY} (index {bad[0]} is out of "
-            f"range); give indices in 0..{state_dim - 1}, or [] for none"
-        )
+    """The contract's check, raised as the policy's one-line ``DatasetContractError``."""
+    try:
+        check_angle_dims(dims, state_dim, source)
+    except ValueError as error:
+        raise DatasetContractError(str(error)) from None
 
 
 def dataset_instructions(dataset_meta: Any) -> list[str]:

@@ -42,7 +42,7 @@ from lerobot.policies import PreTrainedPolicy
 from torch import Tensor
 
 from lerobot_subgoalvla.config_error import DatasetContractError
-from lerobot_subgoalvla.contract.keys import STATE_HISTORY_KEY, STATE_KEY, SUBGOAL_TRACE_KEY, TASK_KEY
+from lerobot_subgoalvla.contract.keys import STATE_HISTORY_KEY, STATE_KEY, TASK_KEY, TRACE_COLUMNS
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
 from lerobot_subgoalvla.policies.subgoalvla.dataset_features import ADD_TRACES_COMMAND, dataset_instructions
 from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
@@ -134,7 +134,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         Returns:
             The loss and numbers to log: ``planner_loss``, ``generator_loss``, ``stage`` (1 or 2).
         """
-        missing = [key for key in (STATE_HISTORY_KEY, SUBGOAL_TRACE_KEY) if key not in batch]
+        missing = [key for key in TRACE_COLUMNS if key not in batch]
         if missing:
             raise DatasetContractError(
                 f"SubgoalVLA trains on {missing}, which the batch lacks; add them with `{ADD_TRACES_COMMAND}`"

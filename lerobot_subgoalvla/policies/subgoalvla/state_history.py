@@ -13,6 +13,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from lerobot_subgoalvla.contract.window import TraceWindow
+
 
 class StateHistoryBuffer:
     """The last ``(length - 1) * stride + 1`` states of B envs; :meth:`push` returns every ``stride``-th.
@@ -26,11 +28,9 @@ class StateHistoryBuffer:
     """
 
     def __init__(self, length: int, stride: int = 1) -> None:
-        if length < 1 or stride < 1:
-            raise ValueError(f"history length and stride must be >= 1, got {length} and {stride}")
-        self.length = int(length)
-        self.stride = int(stride)
-        self._kept = (self.length - 1) * self.stride + 1
+        window = TraceWindow(history_length=length, stride=stride)  # validates both
+        self.length, self.stride = window.history_length, window.stride
+        self._kept = window.history_span + 1
         self._states: Tensor | None = None  # (B, kept, p), oldest first
         self._fresh: Tensor | None = None  # (B,) envs to refill at the next push
 
