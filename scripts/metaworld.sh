@@ -2,16 +2,18 @@
 # SubgoalVLA on Meta-World, end to end, through LeRobot's own env and data layout (docs/metaworld.md):
 #   1. Meta-World's scripted experts recorded in LeRobot's published layout (subgoalvla-generate-metaworld)
 #   2. the state history and subgoal traces added (subgoalvla-add-traces; the paper's frame counts, see below)
-#   3. lerobot-train of SubgoalVLA (laptop preset on a CPU), stage I then stage II in one run
+#   3. lerobot-train of MW_POLICY: subgoalvla (laptop preset on a CPU, stage I then stage II in one run) or the
+#      baseline multi_task_dit (LeRobot's, random CLIP towers of laptop's size, on the recorded data as is)
 #   4. lerobot-eval --env.type=metaworld --env.task=<task> for every task, LeRobot's env unchanged
 #   5. the report: success per task with its interval, loss curves, links to the rollout videos
-# Defaults: the 10 MT10 tasks, 10 expert episodes each, 2000 steps x 32, 10 evaluation episodes per task on
-# seeds 1000+ (never used for data: data seeds derive from --seed 0). Time on 2 CPU cores: generation ~1 h
-# (rendering 480 px is 92 % of it, ~4 steps/s per worker), training ~25 min, evaluation ~10 min per task (an
-# unsolved episode runs LeRobot's 500-step limit). Expected result: not measured yet at these sizes (see
-# docs/RESULTS.md); MW_TASKS / MW_EPISODES / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the sizes.
+# Defaults: the 10 MT10 tasks, 15 expert episodes each, 2000 steps x 32, 10 evaluation episodes per task on
+# seed 1000 on (data seeds derive from --seed 0). Time on 2 idle CPU cores: generation ~25 min (rendering 480 px
+# is 92 % of it, ~4 steps/s per worker), training ~40 min (multi_task_dit ~2x), evaluation 3-10 min per task (an
+# unsolved episode runs LeRobot's 500-step limit). Expected result: docs/RESULTS.md, "Meta-World MT10".
+# MW_POLICY / MW_TASKS / MW_EPISODES / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the run. Two
+# policies may share MW_DIR (the data stages are shared; start the second once the first has its data).
 # Every stage resumes or is skipped when its output is there, so an interrupted run continues.
-# Window: Meta-World's expert episodes last 45-90 steps at a nominal 80 fps, so the fps-scaled window (up to 58
+# Window: Meta-World's expert episodes last 35-90 steps at a nominal 80 fps, so the fps-scaled window (up to 58
 # steps ahead) would span most of an episode; the paper's frame counts (trace 14-21 steps ahead) are used.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -23,7 +25,8 @@ export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREAD
 MT10=(reach-v3 push-v3 pick-place-v3 door-open-v3 drawer-open-v3 drawer-close-v3 button-press-topdown-v3
     peg-insert-side-v3 window-open-v3 window-close-v3)
 read -r -a TASKS <<< "${MW_TASKS:-${MT10[*]}}"
-EPISODES="${MW_EPISODES:-10}"            # expert episodes per task
+POLICY="${MW_POLICY:-subgoalvla}"
+EPISODES="${MW_EPISODES:-15}"            # expert episodes per task
 STEPS="${MW_STEPS:-2000}"                # training steps (stage II for the last fifth)
 EVAL_EPISODES="${MW_EVAL_EPISODES:-10}"  # evaluation episodes per task
 WORKERS="${MW_WORKERS:-2}"
@@ -31,6 +34,12 @@ OUT="${MW_DIR:-outputs/metaworld}"
 REPO=local/metaworld
 mkdir -p "$OUT"
 started=$(date +%s)
+case "$POLICY" in
+    subgoalvla | multi_task_dit) ;;
+    *) echo "metaworld.sh: MW_POLICY=$POLICY is not a policy this command trains; use subgoalvla or multi_task_dit" >&2
+       exit 2 ;;
+esac
+RUN="$OUT/$POLICY"
 stage() { echo "== [$(( ($(date +%s) - started) / 60 )) min] $*"; }
 
 stage "1/5 record ${#TASKS[@]} tasks x $EPISODES expert episodes -> $OUT/raw"
@@ -43,28 +52,40 @@ stage "2/5 add state history and subgoal traces -> $OUT/dataset"
 [ -d "$OUT/dataset" ] || subgoalvla-add-traces --repo-id "$REPO" --root "$OUT/raw" --output-root "$OUT/dataset" \
     --trace-start 14 --stride 1
 
-stage "3/5 train SubgoalVLA (laptop preset, $STEPS steps x 32) -> $OUT/train (log: $OUT/train.log)"
-CKPT="$OUT/train/checkpoints/last/pretrained_model"
-resumable_train "$OUT/train" "$OUT/train.log" --policy.type=subgoalvla --policy.preset=laptop \
-    --policy.push_to_hub=false --policy.device=cpu --policy.stage2_start_step=$((STEPS * 4 / 5)) \
-    --dataset.repo_id="$REPO" --dataset.root="$OUT/dataset" --dataset.video_backend=pyav \
-    --steps="$STEPS" --batch_size=32 --num_workers=1 --log_freq=50 --save_freq=$((STEPS / 4)) --seed=0 \
-    --wandb.enable=false
+CKPT="$RUN/train/checkpoints/last/pretrained_model"
+COMMON_TRAIN_FLAGS=(--policy.push_to_hub=false --policy.device=cpu --dataset.repo_id="$REPO"
+    --dataset.video_backend=pyav --steps="$STEPS" --batch_size=32 --num_workers=1 --log_freq=50
+    --save_freq=$((STEPS / 4)) --seed=0 --wandb.enable=false)
+if [ "$POLICY" = subgoalvla ]; then
+    stage "3/5 train SubgoalVLA (laptop preset, $STEPS steps x 32) -> $RUN/train (log: $RUN/train.log)"
+    resumable_train "$RUN/train" "$RUN/train.log" --policy.type=subgoalvla --policy.preset=laptop \
+        --policy.stage2_start_step=$((STEPS * 4 / 5)) --dataset.root="$OUT/dataset" "${COMMON_TRAIN_FLAGS[@]}"
+else
+    stage "3/5 train multi_task_dit ($STEPS steps x 32, the study's baseline flags) -> $RUN/train (log: $RUN/train.log)"
+    # The baseline's flags have one home, the study (benchmarks/study/multi_task.py); its CLIP towers are random
+    # (no Hub here), the size of laptop's own, with a tokenizer over the dataset's task strings.
+    read -r -a DIT_FLAGS <<< "$(python -c 'import sys; sys.path.insert(0, "benchmarks/study")
+from multi_task import MULTI_TASK_DIT_FLAGS; print(" ".join(MULTI_TASK_DIT_FLAGS))')"
+    CLIP="$(cd "$OUT" && pwd)/random_clip"
+    python benchmarks/study/random_clip.py "$CLIP" --tasks-from "$OUT/raw" > /dev/null
+    resumable_train "$RUN/train" "$RUN/train.log" "${DIT_FLAGS[@]}" --policy.vision_encoder_name="$CLIP" \
+        --policy.text_encoder_name="$CLIP" --dataset.root="$OUT/raw" "${COMMON_TRAIN_FLAGS[@]}"
+fi
 
-stage "4/5 evaluate ${#TASKS[@]} tasks x $EVAL_EPISODES episodes in LeRobot's Meta-World env -> $OUT/eval"
+stage "4/5 evaluate ${#TASKS[@]} tasks x $EVAL_EPISODES episodes in LeRobot's Meta-World env -> $RUN/eval"
+mkdir -p "$RUN/eval"
 for task in "${TASKS[@]}"; do
-    if [ ! -f "$OUT/eval/$task/eval_info.json" ]; then
-        rm -rf "$OUT/eval/$task"
-        mkdir -p "$OUT/eval"
+    if [ ! -f "$RUN/eval/$task/eval_info.json" ]; then
+        rm -rf "$RUN/eval/$task"
         lerobot-eval --policy.path="$CKPT" --env.type=metaworld --env.task="$task" \
             --eval.n_episodes="$EVAL_EPISODES" --eval.batch_size=2 --eval.use_async_envs=true \
-            --output_dir="$OUT/eval/$task" --seed=1000 > "$OUT/eval/$task.log" 2>&1 \
-            || { tail -5 "$OUT/eval/$task.log" >&2; exit 1; }
+            --output_dir="$RUN/eval/$task" --seed=1000 > "$RUN/eval/$task.log" 2>&1 \
+            || { tail -5 "$RUN/eval/$task.log" >&2; exit 1; }
         python -c "import json,sys; o=json.load(open(sys.argv[1]))['overall']; print(f'   {sys.argv[2]}: {o[\"pc_success\"]:.0f} % of {o[\"n_episodes\"]} episodes')" \
-            "$OUT/eval/$task/eval_info.json" "$task"
+            "$RUN/eval/$task/eval_info.json" "$task"
     fi
 done
 
-stage "5/5 report -> $OUT/report"
-subgoalvla-demo-report --train-log "$OUT/train.log" --eval-dir "$OUT/eval" --output-dir "$OUT/report"
-stage "done: report $OUT/report/README.md"
+stage "5/5 report -> $RUN/report"
+subgoalvla-demo-report --train-log "$RUN/train.log" --eval-dir "$RUN/eval" --output-dir "$RUN/report"
+stage "done: report $RUN/report/README.md"

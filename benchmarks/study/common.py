@@ -71,6 +71,16 @@ def run(command: Sequence[str], log_path: Path) -> float:
     return time.perf_counter() - start
 
 
+def code_commit() -> str:
+    """The git commit the study's code is at, with ``+dirty`` when tracked files differ from it."""
+    root = Path(__file__).resolve().parents[2]
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, check=True)
+    status = subprocess.run(
+        ["git", "status", "--porcelain", "--untracked-files=no"], cwd=root, capture_output=True, text=True
+    )
+    return head.stdout.strip() + ("+dirty" if status.stdout.strip() else "")
+
+
 def machine() -> str:
     """One line naming the machine the figures were measured on."""
     return f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, {platform.system()}"
@@ -89,48 +99,35 @@ class DataSpec:
     #: A segment ends when none of ``tasks`` is feasible any more: a single task needs 1 (one attempt each).
     tasks_per_segment: int = 4
 
+    def generate_command(self, work: Path, workers: int = 2) -> list[str]:
+        """The ``subgoalvla-generate-calvin`` call that writes the native episodes."""
+        return [
+            "subgoalvla-generate-calvin",
+            *("--output", str(work / "data" / f"{self.name}_native")),
+            *("--num-tasks", str(self.num_tasks), "--seed", str(self.seed)),
+            *("--tasks-per-segment", str(self.tasks_per_segment), "--workers", str(workers)),
+            *("--tasks", ",".join(self.tasks)),
+            *("--static-size", str(self.static_size), "--gripper-size", str(self.gripper_size)),
+        ]
+
+    def convert_command(self, work: Path, workers: int = 2) -> list[str]:
+        """The ``subgoalvla-convert-calvin`` call that makes the LeRobotDataset."""
+        native, root = work / "data" / f"{self.name}_native", work / "data" / self.name
+        return ["subgoalvla-convert-calvin", str(native), "--repo-id", f"study/{self.name}", "--root", str(root),
+                "--workers", str(workers)]  # fmt: skip
+
+    def data_command(self, work: Path) -> str:
+        """Both calls as one line: the ``data_command`` of a record."""
+        return f"{shlex.join(self.generate_command(work))} && {shlex.join(self.convert_command(work))}"
+
     def prepare(self, work: Path, workers: int = 2) -> Path:
         """Generate and convert (each step skipped when done); returns the dataset root."""
         native, root = work / "data" / f"{self.name}_native", work / "data" / self.name
         if not (native / "training").is_dir():
-            run(
-                [
-                    "subgoalvla-generate-calvin",
-                    "--output",
-                    str(native),
-                    "--num-tasks",
-                    str(self.num_tasks),
-                    "--seed",
-                    str(self.seed),
-                    "--tasks-per-segment",
-                    str(self.tasks_per_segment),
-                    "--workers",
-                    str(workers),
-                    "--tasks",
-                    ",".join(self.tasks),
-                    "--static-size",
-                    str(self.static_size),
-                    "--gripper-size",
-                    str(self.gripper_size),
-                ],
-                work / "logs" / f"{self.name}_generate.log",
-            )
+            run(self.generate_command(work, workers), work / "logs" / f"{self.name}_generate.log")
         if not root.is_dir():
             resume = ["--resume"] if root.with_name(root.name + ".partial").is_dir() else []
-            run(
-                [
-                    "subgoalvla-convert-calvin",
-                    str(native),
-                    "--repo-id",
-                    f"study/{self.name}",
-                    "--root",
-                    str(root),
-                    "--workers",
-                    str(workers),
-                    *resume,
-                ],
-                work / "logs" / f"{self.name}_convert.log",
-            )
+            run([*self.convert_command(work, workers), *resume], work / "logs" / f"{self.name}_convert.log")
         return root
 
 
@@ -222,7 +219,7 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
     """Train (or reuse the checkpoint), evaluate every task, store and return the records.
 
     A run recorded with fewer episodes than ``spec.episodes`` continues its evaluation from the next seed with
-    the same checkpoint, also for a run imported from a demo folder (``--import-demo``) that still exists.
+    the same checkpoint, also for a run recorded from its folder (``import_run.py``) that still exists.
     """
     previous = _previous(spec, load_records(results_path), work)
     if _done(spec, previous):
@@ -276,6 +273,8 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
         **size,
         "scene": SCENE,
         "machine": machine(),
+        "commit": code_commit(),
+        "data_command": spec.data.data_command(work) if spec.dataset_root is None else f"given: {root}",
         "train_command": shlex.join(train_command),
     }
     records = [
@@ -306,6 +305,25 @@ def dataset_size(root: Path) -> dict[str, int]:
     return {"train_episodes": info["total_episodes"], "train_frames": info["total_frames"]}
 
 
+def _eval_command(
+    spec: RunSpec, checkpoint: Path, task: str, out: Path, done: int = 0, first_seed: int = EVAL_SEED
+) -> list[str]:
+    """The ``lerobot-eval`` call for the episodes of ``task`` after the first ``done``."""
+    return [
+        "lerobot-eval",
+        f"--policy.path={checkpoint}",
+        "--env.type=calvin",
+        f"--env.task={task}",
+        f"--env.static_image_size={spec.data.static_size}",
+        f"--env.gripper_image_size={spec.data.gripper_size}",
+        f"--eval.n_episodes={spec.episodes - done}",
+        f"--eval.batch_size={spec.eval_batch_size}",
+        f"--eval.use_async_envs={str(spec.eval_batch_size > 1).lower()}",
+        f"--output_dir={out}",
+        f"--seed={first_seed}",
+    ]
+
+
 def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path) -> dict:
     """``spec.episodes`` episodes of ``task`` from seed ``EVAL_SEED`` on (episode i starts from seed
     ``EVAL_SEED + i``, as ``lerobot-eval`` seeds them), in blocks: a finished shorter evaluation
@@ -313,28 +331,16 @@ def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path) -> dict:
     from lerobot_subgoalvla.demo_report import episode_successes
 
     successes: list[bool] = []
+    commands: list[str] = []
     seconds = 0.0
     while len(successes) < spec.episodes:
         first_seed = EVAL_SEED + len(successes)
         name = f"{task}_from_seed{first_seed}" if successes else task
         eval_dir = out / "eval" / name
+        command = _eval_command(spec, checkpoint, task, eval_dir, len(successes), first_seed)
+        commands.append(shlex.join(command))
         if not (eval_dir / "eval_info.json").is_file():
-            run(
-                [
-                    "lerobot-eval",
-                    f"--policy.path={checkpoint}",
-                    "--env.type=calvin",
-                    f"--env.task={task}",
-                    f"--env.static_image_size={spec.data.static_size}",
-                    f"--env.gripper_image_size={spec.data.gripper_size}",
-                    f"--eval.n_episodes={spec.episodes - len(successes)}",
-                    f"--eval.batch_size={spec.eval_batch_size}",
-                    f"--eval.use_async_envs={str(spec.eval_batch_size > 1).lower()}",
-                    f"--output_dir={eval_dir}",
-                    f"--seed={first_seed}",
-                ],
-                out / f"eval_{name}.log",
-            )
+            run(command, out / f"eval_{name}.log")
         info = json.loads((eval_dir / "eval_info.json").read_text())
         block = episode_successes(info)
         if not block:
@@ -346,6 +352,7 @@ def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path) -> dict:
         "successes": sum(successes),
         "eval_seconds_per_episode": round(seconds / len(successes), 2),
         "eval_seconds": round(seconds, 1),
+        "eval_command": " && ".join(commands),
     }
 
 
@@ -358,27 +365,24 @@ def _evaluate_chains(spec: RunSpec, checkpoint: Path, out: Path) -> dict:
 
     results = out / "eval" / LH_MTLC / "results.jsonl"
     have = len(read_episode_results(results)) if results.is_file() else 0
+    command = [
+        "lerobot-eval",
+        f"--policy.path={checkpoint}",
+        "--env.type=calvin",
+        f"--env.task={LH_MTLC}",
+        f"--env.chain_stop={spec.chains}",
+        f"--env.results_path={results}",
+        "--env.resume=true",  # chains already in the results file are skipped
+        f"--env.static_image_size={spec.data.static_size}",
+        f"--env.gripper_image_size={spec.data.gripper_size}",
+        "--eval.n_episodes=1",
+        "--eval.batch_size=1",
+        "--eval.use_async_envs=false",
+        "--seed=0",
+    ]
     if have < spec.chains:
         name = f"{LH_MTLC}_chains{have}-{spec.chains}"
-        run(
-            [
-                "lerobot-eval",
-                f"--policy.path={checkpoint}",
-                "--env.type=calvin",
-                f"--env.task={LH_MTLC}",
-                f"--env.chain_stop={spec.chains}",
-                f"--env.results_path={results}",
-                f"--env.resume={str(have > 0).lower()}",
-                f"--env.static_image_size={spec.data.static_size}",
-                f"--env.gripper_image_size={spec.data.gripper_size}",
-                "--eval.n_episodes=1",
-                "--eval.batch_size=1",
-                "--eval.use_async_envs=false",
-                f"--output_dir={out / 'eval' / name}",
-                "--seed=0",
-            ],
-            out / f"eval_{name}.log",
-        )
+        run([*command, f"--output_dir={out / 'eval' / name}"], out / f"eval_{name}.log")
     fields = chain_record_fields(results)
     infos = [
         out / "eval" / LH_MTLC / "eval_info.json",
@@ -389,4 +393,5 @@ def _evaluate_chains(spec: RunSpec, checkpoint: Path, out: Path) -> dict:
         **fields,
         "eval_seconds": round(seconds, 1),
         "eval_seconds_per_episode": round(seconds / fields["episodes"], 2),
+        "eval_command": shlex.join(command),
     }

@@ -34,8 +34,6 @@ from common import (
     execute,
     two_stage_flags,
 )
-from demo_import import records_from_demo
-from records import load_records, record_key, store_records
 
 LAPTOP = ("--policy.type=subgoalvla", "--policy.preset=laptop")
 METHODS = {
@@ -118,25 +116,7 @@ def main() -> None:
         help="episodes lerobot-eval steps together (async envs if > 1)",
     )
     parser.add_argument("--dry-run", action="store_true")
-    parser.add_argument(
-        "--import-demo",
-        type=Path,
-        default=None,
-        metavar="DEMO_DIR",
-        help="record a finished run laid out like scripts/demo.sh's (train.log, eval/<task>/) as the run of "
-        "--methods[0] and --seeds[0], then stop",
-    )
     args = parser.parse_args()
-    if args.import_demo is not None:
-        seed, method = args.seeds[0], args.methods[0]
-        records = records_from_demo(args.import_demo, method, seed, batch_size=32)
-        if {record_key(r) for r in records} <= {record_key(r) for r in load_records()}:
-            print(f"{args.import_demo} is already recorded")
-            return
-        store_records(records)
-        for r in records:
-            print(f"{method} {r['setting']:<11} {r['task']:<20} {r['successes']}/{r['episodes']}")
-        return
     data = DataSpec("fixtures", FIXTURE_TASKS, args.demos)
     data_84 = DataSpec("fixtures84", FIXTURE_TASKS, args.demos, static_size=84)
     for name in args.methods:

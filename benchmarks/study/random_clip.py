@@ -8,19 +8,21 @@ its own CLIP tower from random weights too, so the baseline gets a random CLIP o
 layers). OpenAI's ViT-B/16 at 224 px would cost about a minute per update of 32 samples on 2 CPU cores and
 would be random here anyway.
 
-The tokenizer is word-level over SubgoalVLA's CALVIN vocabulary (every training and evaluation instruction,
-``tiny_vocabulary``) with an end-of-text token appended: CLIP's text pooler reads the hidden state at the
-first
-``eos_token_id``, so every instruction must end with one.
+The tokenizer is word-level over the words of the instructions it is given (by default every CALVIN training
+and evaluation instruction; ``--tasks-from`` takes a LeRobotDataset's task strings instead, e.g. Meta-World's)
+with an end-of-text token appended: CLIP's text pooler reads the hidden state at the first ``eos_token_id``, so
+every instruction must end with one.
 
 Usage::
 
     python benchmarks/study/random_clip.py outputs/study/random_clip
+    python benchmarks/study/random_clip.py outputs/metaworld/random_clip --tasks-from outputs/metaworld/raw
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterable
 from pathlib import Path
 
 END_OF_TEXT = "<|endoftext|>"
@@ -31,12 +33,22 @@ TEXT = {"hidden_size": 64, "num_hidden_layers": 4, "num_attention_heads": 4, "in
         "max_position_embeddings": 77}  # fmt: skip
 
 
-def build_tokenizer():
-    """Word-level CALVIN tokenizer whose every encoding ends with ``END_OF_TEXT``."""
+def dataset_tasks(root: Path) -> list[str]:
+    """The task strings of the LeRobotDataset at ``root`` (its ``meta/tasks.parquet``)."""
+    import pandas as pd
+
+    path = root / "meta" / "tasks.parquet"
+    if not path.is_file():
+        raise SystemExit(f"--tasks-from {root}: no meta/tasks.parquet there; pass a LeRobotDataset's root folder")
+    return list(pd.read_parquet(path).index)
+
+
+def build_tokenizer(instructions: Iterable[str] | None = None):
+    """Word-level tokenizer over the words of ``instructions`` (default: CALVIN's) whose every encoding ends
+    with ``END_OF_TEXT``."""
     from tokenizers import Tokenizer, models, normalizers, pre_tokenizers, processors
     from transformers import PreTrainedTokenizerFast
 
-    from lerobot_subgoalvla.calvin_vocab import ALL_INSTRUCTIONS
     from lerobot_subgoalvla.policies.subgoalvla.tokenizer import (
         IMAGE_TOKEN,
         PAD_TOKEN,
@@ -44,7 +56,11 @@ def build_tokenizer():
         vocabulary_words,
     )
 
-    words = [IMAGE_TOKEN, *vocabulary_words(ALL_INSTRUCTIONS)]  # the tiny tokenizer's words, as before
+    if instructions is None:
+        from lerobot_subgoalvla.calvin_vocab import ALL_INSTRUCTIONS
+
+        instructions = ALL_INSTRUCTIONS
+    words = [IMAGE_TOKEN, *vocabulary_words(instructions)]  # the tiny tokenizer's words
     vocab = {word: index for index, word in enumerate((PAD_TOKEN, UNK_TOKEN, END_OF_TEXT, *words))}
     backend = Tokenizer(models.WordLevel(vocab=vocab, unk_token=UNK_TOKEN))
     backend.normalizer = normalizers.Lowercase()
@@ -57,7 +73,7 @@ def build_tokenizer():
     )
 
 
-def save_random_clip(directory: Path, seed: int = 0) -> Path:
+def save_random_clip(directory: Path, instructions: Iterable[str] | None = None, seed: int = 0) -> Path:
     """Write a random CLIP (weights, config, tokenizer) to ``directory`` unless it is there; returns it.
 
     The folder name must contain ``clip`` (``multi_task_dit`` checks the name).
@@ -69,7 +85,7 @@ def save_random_clip(directory: Path, seed: int = 0) -> Path:
     import torch
     from transformers import CLIPConfig, CLIPModel
 
-    tokenizer = build_tokenizer()
+    tokenizer = build_tokenizer(instructions)
     ids = {"pad_token_id": tokenizer.pad_token_id, "eos_token_id": tokenizer.eos_token_id,
            "bos_token_id": tokenizer.eos_token_id}  # fmt: skip
     config = CLIPConfig(text_config={**TEXT, **ids, "vocab_size": len(tokenizer)}, vision_config=VISION)
@@ -84,8 +100,16 @@ def save_random_clip(directory: Path, seed: int = 0) -> Path:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("directory", type=Path, help="folder to write (its name must contain 'clip')")
+    parser.add_argument(
+        "--tasks-from",
+        type=Path,
+        default=None,
+        metavar="DATASET_ROOT",
+        help="build the tokenizer from this LeRobotDataset's task strings instead of CALVIN's instructions",
+    )
     args = parser.parse_args()
-    print(save_random_clip(args.directory))
+    instructions = None if args.tasks_from is None else dataset_tasks(args.tasks_from)
+    print(save_random_clip(args.directory, instructions))
 
 
 if __name__ == "__main__":

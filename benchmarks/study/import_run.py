@@ -1,0 +1,104 @@
+"""Record a finished end-to-end run (``scripts/demo.sh`` or ``scripts/metaworld.sh``) in the study's results
+file, with the commit and the exact commands that made it, so the study does not train such a run twice.
+
+A run folder holds ``train.log``, ``train/checkpoints/last/pretrained_model/train_config.json`` (steps, batch
+size and seed are read from it) and ``eval/<task>/eval_info.json`` (plus ``eval/lh_mtlc/results.jsonl`` for
+CALVIN's chains). One record per evaluated task.
+
+Usage::
+
+    python benchmarks/study/import_run.py outputs/mt10/subgoalvla --dataset outputs/mt10/dataset \\
+        --method subgoalvla --setting metaworld_mt10 --scene metaworld --commit "$(git rev-parse HEAD)" \\
+        --data-command "..." --train-command "..." --eval-command "..."
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from common import LH_MTLC, dataset_size, machine
+from records import chain_record_fields, store_records
+
+SETTINGS = ("multi_task", "metaworld_mt10")
+
+
+def _eval_seconds(eval_dir: Path, task: str) -> float | None:
+    """Wall seconds of ``lerobot-eval`` for ``task`` (its ``overall.eval_s``), None where not written."""
+    overall = json.loads((eval_dir / task / "eval_info.json").read_text()).get("overall", {})
+    seconds = overall.get("eval_s")
+    return None if seconds is None else round(float(seconds), 1)
+
+
+def records_from_run(run_dir: Path, dataset: Path, provenance: dict) -> list[dict]:
+    """One record per task evaluated in ``run_dir`` (and one for its chains), each carrying ``provenance``
+    (method, setting, scene, commit and the commands)."""
+    from lerobot_subgoalvla.demo_report import parse_train_log, read_task_results, train_wall_seconds
+
+    log = parse_train_log(run_dir / "train.log")
+    if not log:
+        raise SystemExit(f"{run_dir / 'train.log'} has no lerobot-train step lines; is the run trained?")
+    config_path = run_dir / "train" / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
+    if not config_path.is_file():
+        raise SystemExit(f"{config_path} is missing; pass the folder of a run scripts/*.sh trained")
+    config = json.loads(config_path.read_text())
+    seconds = train_wall_seconds(run_dir / "train.log")
+    training = {
+        **provenance,
+        "seed": config["seed"],
+        "train_samples": config["steps"] * config["batch_size"],
+        **dataset_size(dataset),
+        "train_seconds": None if seconds is None else round(seconds, 1),
+        "samples_per_s": log[-1].get("smp/s"),
+        "machine": machine(),
+        # The study continues the evaluation of a recorded run from here (common.execute).
+        "source": str(run_dir),
+    }
+    eval_dir = run_dir / "eval"
+    records = [
+        {
+            **training,
+            "task": task,
+            "episodes": result["episodes"],
+            "successes": result["successes"],
+            "eval_seconds": _eval_seconds(eval_dir, task),
+        }
+        for task, result in read_task_results(eval_dir).items()
+    ]
+    chains = eval_dir / LH_MTLC / "results.jsonl"
+    if chains.is_file():
+        records.append({**training, "setting": LH_MTLC, "task": LH_MTLC, **chain_record_fields(chains)})
+    return records
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_dir", type=Path, help="the run's folder (train.log, train/, eval/)")
+    parser.add_argument("--dataset", type=Path, required=True, help="the LeRobotDataset root it trained on")
+    parser.add_argument("--method", required=True, help="the record's method name, e.g. subgoalvla")
+    parser.add_argument("--setting", choices=SETTINGS, required=True, help="the table the records belong to")
+    parser.add_argument("--scene", required=True, help="procedural | calvin_D | metaworld")
+    parser.add_argument("--commit", required=True, help="the git commit the run's code was at")
+    for stage in ("data", "train", "eval"):
+        parser.add_argument(f"--{stage}-command", required=True, help=f"the exact {stage} command")
+    args = parser.parse_args()
+    if not (args.dataset / "meta" / "info.json").is_file():
+        raise SystemExit(f"--dataset {args.dataset}: no meta/info.json; pass the LeRobotDataset's root folder")
+    provenance = {
+        "method": args.method,
+        "setting": args.setting,
+        "scene": args.scene,
+        "commit": args.commit,
+        "data_command": args.data_command,
+        "train_command": args.train_command,
+        "eval_command": args.eval_command,
+    }
+    records = records_from_run(args.run_dir, args.dataset, provenance)
+    store_records(records)  # replaces the records of the same run (e.g. one evaluated again)
+    for r in records:
+        print(f"{r['method']} {r['setting']:<14} {r['task']:<24} {r['successes']}/{r['episodes']}")
+
+
+if __name__ == "__main__":
+    main()
