@@ -133,7 +133,8 @@ def _save(fig: Any, path: Path) -> None:
 
 
 def plot_losses(records: Sequence[dict[str, float]], path: Path) -> None:
-    """Planner and generator loss against the logged step; the stage II steps are shaded."""
+    """Planner and generator loss (SubgoalVLA) or the total loss (any other policy, e.g. a baseline)
+    against the logged step; the stage II steps are shaded."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -141,13 +142,14 @@ def plot_losses(records: Sequence[dict[str, float]], path: Path) -> None:
     FigureCanvasAgg(fig)
     ax = fig.subplots()
     steps = [r["step"] for r in records]
-    for key, colour in (("planner_loss", "tab:purple"), ("generator_loss", "tab:orange")):
+    keys = [k for k in ("planner_loss", "generator_loss") if any(k in r for r in records)] or ["loss"]
+    for key, colour in zip(keys, ("tab:purple", "tab:orange"), strict=False):
         if any(key in r for r in records):
             ax.plot(steps, [r.get(key, math.nan) for r in records], label=key.replace("_", " "), color=colour)
     stage2 = [r["step"] for r in records if r.get("stage") == 2]
     if stage2:
         ax.axvspan(min(stage2), max(stage2), color="grey", alpha=0.15, label="stage II")
-    ax.set(xlabel="optimizer step", ylabel="diffusion loss", yscale="log", title="training losses")
+    ax.set(xlabel="optimizer step", ylabel="training loss", yscale="log", title="training losses")
     ax.legend()
     _save(fig, path)
 
@@ -182,8 +184,15 @@ def _chains(eval_dir: Path) -> dict[str, Any] | None:
     return summarize(read_episode_results(path)).to_json()
 
 
-def _markdown(summary: dict[str, Any], output_dir: Path) -> str:
-    lines = ["# SubgoalVLA demo report", ""]
+#: Trace figures the end-to-end commands write into the report folder before the report, and their captions.
+TRACE_FIGURES = {
+    "traces.png": "Predicted subgoal traces (ghost robots) over the executed rollout",
+    "trace_plot.png": "Predicted subgoal traces beside the executed state, per state dimension",
+}
+
+
+def _markdown(summary: dict[str, Any], output_dir: Path, title: str) -> str:
+    lines = [f"# {title}", ""]
     tasks = summary["tasks"]
     if tasks:
         lines += [
@@ -215,18 +224,23 @@ def _markdown(summary: dict[str, Any], output_dir: Path) -> str:
     train = summary["training"]
     if train:
         minutes = "" if train["wall_seconds"] is None else f" in {train['wall_seconds'] / 60:.0f} min"
+        losses = ", ".join(f"{name.replace('_', ' ')} {value:.4f}" for name, value in train["losses"].items())
         lines += [
-            f"Training: {train['steps']:.0f} steps{minutes}, last planner loss {train['planner_loss']:.4f}, "
-            f"generator loss {train['generator_loss']:.4f}, {train['samples_per_s']:.0f} samples/s.",
+            f"Training: {train['steps']:.0f} steps{minutes}, last {losses}, "
+            f"{train['samples_per_s']:.0f} samples/s.",
             "",
             "![loss curves](loss_curves.png)",
             "",
         ]
-    lines += ["Predicted subgoal traces (ghost robots) over the executed rollout: ![traces](traces.png)", ""]
+    for name, caption in TRACE_FIGURES.items():
+        if (output_dir / name).is_file():
+            lines += [f"{caption}: ![traces]({name})", ""]
     return "\n".join(lines)
 
 
-def build_report(train_log: Path | None, eval_dir: Path, output_dir: Path) -> dict[str, Any]:
+def build_report(
+    train_log: Path | None, eval_dir: Path, output_dir: Path, title: str = "SubgoalVLA demo report"
+) -> dict[str, Any]:
     """Write README.md, summary.json and the PNGs into ``output_dir``; returns the summary."""
     output_dir.mkdir(parents=True, exist_ok=True)
     tasks = read_task_results(eval_dir)
@@ -237,8 +251,8 @@ def build_report(train_log: Path | None, eval_dir: Path, output_dir: Path) -> di
         training = {
             "steps": last["step"],
             "wall_seconds": train_wall_seconds(train_log),
-            "planner_loss": last.get("planner_loss", math.nan),
-            "generator_loss": last.get("generator_loss", math.nan),
+            "losses": {k: last[k] for k in ("planner_loss", "generator_loss") if k in last}
+            or {"loss": last["loss"]},
             "samples_per_s": last.get("smp/s", math.nan),
         }
         plot_losses(records, output_dir / "loss_curves.png")
@@ -251,7 +265,7 @@ def build_report(train_log: Path | None, eval_dir: Path, output_dir: Path) -> di
         "training": training,
     }
     (output_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-    (output_dir / "README.md").write_text(_markdown(summary, output_dir))
+    (output_dir / "README.md").write_text(_markdown(summary, output_dir, title))
     return summary
 
 
@@ -264,12 +278,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--eval-dir", type=Path, required=True, help="folder of <task>/eval_info.json and lh_mtlc/"
     )
     parser.add_argument("--output-dir", type=Path, required=True, help="where README.md and the PNGs go")
+    parser.add_argument("--title", default="SubgoalVLA demo report", help="the report's heading")
     with user_errors(logger):
         args = parser.parse_args(argv)
         for flag, path in (("--train-log", args.train_log), ("--eval-dir", args.eval_dir)):
             if path is not None and not path.exists():
                 raise FileNotFoundError(f"{flag} {path} does not exist; run the earlier demo stages first")
-        summary = build_report(args.train_log, args.eval_dir, args.output_dir)
+        summary = build_report(args.train_log, args.eval_dir, args.output_dir, args.title)
     mean = summary["mean_task_success"]
     chains = summary["lh_mtlc"]
     logger.info(

@@ -87,5 +87,11 @@ for task in "${TASKS[@]}"; do
 done
 
 stage "5/5 report -> $RUN/report"
-subgoalvla-demo-report --train-log "$RUN/train.log" --eval-dir "$RUN/eval" --output-dir "$RUN/report"
+mkdir -p "$RUN/report"
+if [ "$POLICY" = subgoalvla ] && [ ! -f "$RUN/report/trace_plot.png" ]; then
+    subgoalvla-plot-traces --policy-path "$CKPT" --env-type metaworld --task "${TASKS[0]}" --seed 1000 \
+        --output "$RUN/report/trace_plot.png"
+fi
+subgoalvla-demo-report --train-log "$RUN/train.log" --eval-dir "$RUN/eval" --output-dir "$RUN/report" \
+    --title "$POLICY on Meta-World (${#TASKS[@]} tasks, $EVAL_EPISODES episodes each)"
 stage "done: report $RUN/report/README.md"

@@ -113,8 +113,8 @@ class DataSpec:
     def convert_command(self, work: Path, workers: int = 2) -> list[str]:
         """The ``subgoalvla-convert-calvin`` call that makes the LeRobotDataset."""
         native, root = work / "data" / f"{self.name}_native", work / "data" / self.name
-        return ["subgoalvla-convert-calvin", str(native), "--repo-id", f"study/{self.name}", "--root", str(root),
-                "--workers", str(workers)]  # fmt: skip
+        return ["subgoalvla-convert-calvin", str(native), "--repo-id", f"study/{self.name}",
+                "--root", str(root), "--workers", str(workers)]  # fmt: skip
 
     def data_command(self, work: Path) -> str:
         """Both calls as one line: the ``data_command`` of a record."""

@@ -84,7 +84,9 @@ def main() -> None:
         parser.add_argument(f"--{stage}-command", required=True, help=f"the exact {stage} command")
     args = parser.parse_args()
     if not (args.dataset / "meta" / "info.json").is_file():
-        raise SystemExit(f"--dataset {args.dataset}: no meta/info.json; pass the LeRobotDataset's root folder")
+        raise SystemExit(
+            f"--dataset {args.dataset}: no meta/info.json; pass the LeRobotDataset's root folder"
+        )
     provenance = {
         "method": args.method,
         "setting": args.setting,

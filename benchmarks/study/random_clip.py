@@ -8,10 +8,10 @@ its own CLIP tower from random weights too, so the baseline gets a random CLIP o
 layers). OpenAI's ViT-B/16 at 224 px would cost about a minute per update of 32 samples on 2 CPU cores and
 would be random here anyway.
 
-The tokenizer is word-level over the words of the instructions it is given (by default every CALVIN training
-and evaluation instruction; ``--tasks-from`` takes a LeRobotDataset's task strings instead, e.g. Meta-World's)
-with an end-of-text token appended: CLIP's text pooler reads the hidden state at the first ``eos_token_id``, so
-every instruction must end with one.
+The tokenizer is word-level over the words of the instructions it is given (by default every CALVIN
+training and evaluation instruction; ``--tasks-from`` takes a LeRobotDataset's task strings instead, e.g.
+Meta-World's) with an end-of-text token appended: CLIP's text pooler reads the hidden state at the first
+``eos_token_id``, so every instruction must end with one.
 
 Usage::
 
@@ -39,7 +39,9 @@ def dataset_tasks(root: Path) -> list[str]:
 
     path = root / "meta" / "tasks.parquet"
     if not path.is_file():
-        raise SystemExit(f"--tasks-from {root}: no meta/tasks.parquet there; pass a LeRobotDataset's root folder")
+        raise SystemExit(
+            f"--tasks-from {root}: no meta/tasks.parquet there; pass a LeRobotDataset's root folder"
+        )
     return list(pd.read_parquet(path).index)
 
 

@@ -52,3 +52,26 @@ def test_a_tiny_subgoalvla_runs_an_episode_in_lerobots_metaworld_env(checkpoint:
     episode = info["per_episode"][0]
     assert episode["episode_ix"] == 0 and isinstance(episode["success"], bool)
     assert info["aggregated"]["avg_sum_reward"] >= 0
+
+
+def test_the_planned_traces_of_a_metaworld_episode_are_plotted(checkpoint: Path, tmp_path: Path) -> None:
+    from lerobot_subgoalvla.visualization import trace_plot
+    from lerobot_subgoalvla.visualization.checkpoint import load_policy
+
+    policy, pre, post = load_policy(checkpoint)
+    env_cfg = trace_plot.env_config("metaworld", "reach-v3")
+    vector_env = trace_plot.make_single_env(env_cfg)
+    try:
+        for env in vector_env.envs:
+            env.unwrapped._max_episode_steps = 6
+        result = trace_plot.rollout_traces(policy, pre, post, vector_env, env_cfg, seed=1000)
+    finally:
+        vector_env.close()
+    assert result.states.shape == (6, 4) and result.task == "Reach a goal position"
+    assert result.plans and result.plans[0][0] == 0  # the first chunk is planned at the first step
+    assert all(trace.shape == (8, 4) for _, trace in result.plans)
+    assert list(result.trace_steps) == list(range(14, 22))  # the recipe's window: start 14, stride 1
+    figure = tmp_path / "trace_plot.png"
+    trace_plot.plot_trace_rollout(result, figure)
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
