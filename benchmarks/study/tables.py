@@ -1,13 +1,14 @@
-"""Print the study's tables from ``benchmarks/study/results.json`` (the records only: no training, no simulator).
+"""Print the study's tables from ``benchmarks/study/results.json`` (from the records alone: nothing runs).
 
 One table per setting, one row per (method, training samples, training frames, code era): runs of different
-training code are never pooled (``records.ERA_COMMITS``; a record whose era the history does not establish is a
-row of its own, named by the commit that recorded it). Columns: closed-loop success per task (successes over
-episodes, summed over the row's seeds; for a row of one seed in a setting of :data:`INTERVAL_SETTINGS`, with
-its 95 % Wilson interval), the mean success over the tasks: the mean over seeds of each seed's mean with the
-sample standard deviation and the number of seeds (``82.5 (sd 6.0, n=3)``), the range of the seeds' means,
-and the cost: training wall time, training samples/s and evaluation seconds per episode (medians over the
-seeds). For ``lh_mtlc`` the score is the average chain length (tasks completed in a row, 0-5).
+training code are never pooled (``records.ERA_COMMITS``; a record whose era the history does not establish
+is a row of its own, named by the commit that recorded it). Columns: closed-loop success per task
+(successes over episodes, summed over the row's seeds; for a row of one seed in a setting of
+:data:`INTERVAL_SETTINGS`, with its 95 % Wilson interval), the mean success over the tasks: the mean over
+seeds of each seed's mean with the sample standard deviation and the number of seeds (``82.5 (sd 6.0, n=3)``),
+the range of the seeds' means, and the cost: training wall time, training samples/s and evaluation seconds
+per episode (medians over the seeds). For ``lh_mtlc`` the score is the average chain length (tasks completed
+in a row, 0-5).
 
 Usage::
 
@@ -38,8 +39,8 @@ SHORT = dict(zip(FIXTURE_TASKS, COLUMNS, strict=True))
 
 
 def era_label(record: dict) -> str:
-    """The code era a record ran (``code_era``); where it is not established, ``?`` and the commit that recorded
-    the run (so two such runs are never pooled); else its commit."""
+    """The code era a record ran (``code_era``); where it is not established, ``?`` and the commit that
+    recorded the run (so two such runs are never pooled); else its commit."""
     if record.get("code_era"):
         return record["code_era"]
     if record.get("recorded_in"):
@@ -51,7 +52,12 @@ def _group(records: list[dict], setting: str) -> dict[tuple, list[dict]]:
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for record in records:
         if record["setting"] == setting:
-            key = (record["method"], record["train_samples"], record.get("train_frames") or 0, era_label(record))
+            key = (
+                record["method"],
+                record["train_samples"],
+                record.get("train_frames") or 0,
+                era_label(record),
+            )
             groups[key].append(record)
     return groups
 
@@ -62,8 +68,8 @@ def _median(values: list) -> float | None:
 
 
 def summarize(rows: list[dict]) -> dict:
-    """Per-task totals, per-seed means and their spread (mean, sample sd, range, n), and the cost medians of
-    one group of records."""
+    """Per-task totals, per-seed means and their spread (mean, sample sd, range, n), and the cost medians
+    of one group of records."""
     per_task: dict[str, list[float]] = defaultdict(lambda: [0, 0])
     per_seed: dict[int, list[float]] = defaultdict(lambda: [0, 0])
     for r in rows:
@@ -146,7 +152,9 @@ def print_table(records: list[dict], setting: str, markdown: bool) -> None:
     lines = table_lines(records, setting)
     if not lines:
         return
-    legend = [f"{SHORT[t]}={t}" for t in _tasks([r for r in records if r["setting"] == setting]) if t in SHORT]
+    legend = [
+        f"{SHORT[t]}={t}" for t in _tasks([r for r in records if r["setting"] == setting]) if t in SHORT
+    ]
     print(f"\n{setting}" + (f"  (tasks: {', '.join(legend)})" if legend else ""))
     _print_lines(lines, markdown)
 
@@ -203,7 +211,7 @@ def comparison_lines(records: list[dict], runs: list[str], setting: str = "multi
     return lines
 
 
-def print_comparison(records: list[dict], runs: list[str], markdown: bool, setting: str = "multi_task") -> None:
+def print_comparison(records: list[dict], runs: list[str], markdown: bool, setting: str) -> None:
     lines = comparison_lines(records, runs, setting)
     if markdown:
         lines[-2] = [f"**{cell}**" for cell in lines[-2]]
@@ -212,7 +220,9 @@ def print_comparison(records: list[dict], runs: list[str], markdown: bool, setti
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--setting", choices=SETTINGS, default=None, help="one table (default: every setting)")
+    parser.add_argument(
+        "--setting", choices=SETTINGS, default=None, help="one table (default: every setting)"
+    )
     parser.add_argument("--markdown", action="store_true", help="print Markdown tables")
     parser.add_argument(
         "--compare",
