@@ -1,4 +1,5 @@
-"""The study's results file: records replace their earlier versions, and a shorter evaluation is continued."""
+"""The study's results file: records replace their earlier versions, a shorter evaluation is continued, every
+record says where it came from, and a finished scripts/*.sh run is recorded with its commit and commands."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ def common(monkeypatch: pytest.MonkeyPatch):
     import common as study_common
 
     yield study_common
-    for module in ("common", "records"):
+    for module in ("common", "records", "import_run"):
         sys.modules.pop(module, None)
 
 
@@ -162,3 +163,117 @@ def test_a_regenerated_dataset_trains_its_own_checkpoint(common, tmp_path, monke
     ]
     assert len(trained) == 2 and trained[0] != trained[1]
     assert sorted(r["train_frames"] for r in common.load_records(results)) == [16798, 16887]
+
+
+def test_every_stored_record_says_where_it_came_from(common) -> None:
+    import records
+
+    results = records.load_records()
+    assert results, "benchmarks/study/results.json holds no records"
+    lacking = {
+        f"{r['method']} {r['setting']} {r['task']} seed {r['seed']}": records.missing_provenance(r)
+        for r in results
+    }
+    assert {name: missing for name, missing in lacking.items() if missing} == {}
+    eras = {boundary for boundary, _ in records.ERA_COMMITS} | {records.FIRST_ERA, None}
+    assert {r["code_era"] for r in results} <= eras
+
+
+def test_a_record_without_a_command_needs_a_note(common) -> None:
+    import records
+
+    record = dict.fromkeys(records.PROVENANCE_KEYS, "x") | {"train_command": None, "recorded_in": "abc"}
+    assert records.missing_provenance(record) == ["provenance (a note on the missing train_command)"]
+    assert records.missing_provenance({**record, "provenance": "not recorded by the run's script"}) == []
+    del record["recorded_in"]
+    record["commit"] = None
+    assert "commit or recorded_in" in records.missing_provenance({**record, "provenance": "note"})
+
+
+def _git_has(*commits: str) -> bool:
+    import subprocess
+
+    root = STUDY.parents[1]
+    return all(subprocess.run(["git", "cat-file", "-e", c], cwd=root, capture_output=True).returncode == 0
+               for c in commits)  # fmt: skip
+
+
+@pytest.mark.skipif(not _git_has("b6dfa55", "06900d6", "c27f484"), reason="needs the repository's history")
+def test_the_code_era_is_the_last_era_commit_the_code_contains(common) -> None:
+    import records
+
+    assert records.code_era("ac54a9f") == records.FIRST_ERA  # the reference run's record, before both
+    assert records.code_era("c27f484") == "b6dfa55"  # the fresh-machine demo run
+    assert records.code_era("06900d6+dirty") == "06900d6"
+
+
+def _fake_run(run: Path, tasks: dict[str, list[bool]], chains: int = 0) -> None:
+    """A finished scripts/*.sh run: train.log, the last checkpoint's train_config.json, eval/<task>/."""
+    step = "INFO ot_train.py:641 step:{step} smpl:1K ep:2 epch:0.1 loss:0.5 updt_s:0.4 data_s:0.1 smp/s:{sps}"
+    log = [step.format(step=s, sps=sps) for s, sps in ((50, 40), (100, 61))]
+    log.append("Training: 100%|##########| 100/100 [02:05<00:00,  0.8step/s]")
+    checkpoint = run / "train" / "checkpoints" / "last" / "pretrained_model"
+    checkpoint.mkdir(parents=True)
+    (run / "train.log").write_text("\n".join(log) + "\n")
+    (checkpoint / "train_config.json").write_text(json.dumps({"steps": 100, "batch_size": 8, "seed": 3}))
+    for task, successes in tasks.items():
+        _write_eval(run / "eval" / task, successes)
+    if chains:
+        _write_chains(run / "eval" / "lh_mtlc" / "results.jsonl", range(chains), completed=2)
+
+
+def _dataset(root: Path, episodes: int = 20, frames: int = 1679) -> Path:
+    (root / "meta").mkdir(parents=True)
+    (root / "meta" / "info.json").write_text(json.dumps({"total_episodes": episodes, "total_frames": frames}))
+    return root
+
+
+def test_a_finished_run_is_recorded_with_its_commit_commands_and_counts(common, tmp_path: Path) -> None:
+    import import_run
+    import records as study_records
+
+    run = tmp_path / "mt10" / "subgoalvla"
+    _fake_run(run, {"reach-v3": [True] * 9 + [False], "push-v3": [False] * 10})
+    provenance = {
+        "method": "subgoalvla", "setting": "metaworld_mt10", "scene": "metaworld", "commit": "abc1234",
+        "code_era": "06900d6", "data_command": "record", "train_command": "train", "eval_command": "eval",
+    }  # fmt: skip
+    records = import_run.records_from_run(run, _dataset(tmp_path / "dataset"), provenance)
+    by_task = {r["task"]: r for r in records}
+    assert sorted(by_task) == ["push-v3", "reach-v3"]
+    assert (by_task["reach-v3"]["successes"], by_task["reach-v3"]["episodes"]) == (9, 10)
+    assert (by_task["push-v3"]["successes"], by_task["push-v3"]["episodes"]) == (0, 10)
+    for record in records:
+        assert {k: record[k] for k in provenance} == provenance
+        assert record["source"] == str(run)
+        assert (record["seed"], record["train_samples"]) == (3, 800)  # from train_config.json: 100 x 8
+        assert (record["train_episodes"], record["train_frames"]) == (20, 1679)
+        assert (record["train_seconds"], record["samples_per_s"]) == (125, 61)  # tqdm's 02:05, the last line
+        assert record["eval_seconds"] == 20.0
+        assert study_records.missing_provenance(record) == []
+
+
+def test_a_finished_calvin_run_adds_its_chain_record(common, tmp_path: Path) -> None:
+    import import_run
+    import records as study_records
+
+    run = tmp_path / "demo"
+    _fake_run(run, {"open_drawer": [True] * 10}, chains=4)
+    provenance = dict.fromkeys(study_records.PROVENANCE_KEYS, "x") | {
+        "method": "subgoalvla", "setting": "multi_task", "scene": "procedural",
+    }  # fmt: skip
+    records = import_run.records_from_run(run, _dataset(tmp_path / "dataset"), provenance)
+    chains = next(r for r in records if r["task"] == "lh_mtlc")
+    assert (chains["setting"], chains["episodes"], chains["avg_len"]) == ("lh_mtlc", 4, 2.0)
+    assert chains["commit"] == "x" and chains["train_command"] == "x"
+    assert [study_records.missing_provenance(r) for r in records] == [[], []]
+
+
+def test_a_run_that_never_logged_a_step_is_refused(common, tmp_path: Path) -> None:
+    import import_run
+
+    run = tmp_path / "run"
+    _fake_run(run, {"reach-v3": [True]})
+    (run / "train.log").write_text("Training:   0%|          | 0/100\n")
+    with pytest.raises(SystemExit, match="no lerobot-train step lines"):
+        import_run.records_from_run(run, _dataset(tmp_path / "dataset"), {})

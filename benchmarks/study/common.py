@@ -12,7 +12,8 @@ Record keys (the issue's contract): ``method``, ``setting`` (single_task | multi
 ``seed``, ``episodes``, ``successes`` (+ ``avg_len`` for lh_mtlc), ``train_samples``, ``train_seconds``,
 ``scene``; plus ``samples_per_s``, ``train_episodes`` and ``train_frames``, ``eval_seconds`` and
 ``eval_seconds_per_episode`` (wall time, policy and simulator together), ``chain_sr`` (LH-1..5, lh_mtlc),
-``machine`` and the exact ``train_command``. ``RunSpec.chains`` adds an lh_mtlc record per run.
+``machine``, and where it came from (``records.PROVENANCE_KEYS``: the commit, its code era, the exact data,
+train and eval commands). ``RunSpec.chains`` adds an lh_mtlc record per run.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from records import RESULTS_PATH, chain_record_fields, load_records, record_key, store_records
+from records import RESULTS_PATH, chain_record_fields, code_era, load_records, record_key, store_records
 
 logger = logging.getLogger("study")
 
@@ -266,6 +267,7 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
         timing.parent.mkdir(parents=True, exist_ok=True)
         timing.write_text(f"{run(train_command, train_log):.1f}\n")
     metrics = _last_train_metrics(train_log)
+    commit = code_commit()
     training = {
         "train_samples": spec.steps * spec.method.batch_size,
         "train_seconds": round(float(timing.read_text()), 1),
@@ -273,7 +275,8 @@ def execute(spec: RunSpec, work: Path, results_path: Path = RESULTS_PATH) -> lis
         **size,
         "scene": SCENE,
         "machine": machine(),
-        "commit": code_commit(),
+        "commit": commit,
+        "code_era": code_era(commit),
         "data_command": spec.data.data_command(work) if spec.dataset_root is None else f"given: {root}",
         "train_command": shlex.join(train_command),
     }

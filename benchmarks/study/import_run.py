@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 
 from common import LH_MTLC, dataset_size, machine
-from records import chain_record_fields, store_records
+from records import chain_record_fields, code_era, store_records
 
 SETTINGS = ("multi_task", "metaworld_mt10")
 
@@ -92,6 +92,7 @@ def main() -> None:
         "setting": args.setting,
         "scene": args.scene,
         "commit": args.commit,
+        "code_era": code_era(args.commit),
         "data_command": args.data_command,
         "train_command": args.train_command,
         "eval_command": args.eval_command,

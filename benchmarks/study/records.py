@@ -1,13 +1,57 @@
 """The study's results file, ``benchmarks/study/results.json``: a list of records, one per (method, setting,
-task, seed, training samples, training frames), rewritten atomically under a file lock."""
+task, seed, training samples, training frames), rewritten atomically under a file lock.
+
+Every record says where it came from: ``commit`` (the code's git commit, ``+dirty`` when the tree differed;
+None where it was not recorded), ``recorded_in`` (the commit that added a record made before records named
+their commit), ``code_era`` (which training code it ran: :data:`ERA_COMMITS`; None where the history does not
+establish it), ``data_command``, ``train_command`` and ``eval_command`` (None where not recorded), and a
+``provenance`` note wherever one of those is missing.
+"""
 
 from __future__ import annotations
 
 import fcntl
 import json
+import subprocess
 from pathlib import Path
 
 RESULTS_PATH = Path(__file__).resolve().parent / "results.json"
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+#: Commits after which the same training command and seed train another model. A record's ``code_era`` is the
+#: last of them its code contains (``pre-`` the first where it contains none); the tables never pool runs of
+#: two eras. A commit that changes what a seed trains is added here.
+ERA_COMMITS = (
+    ("b6dfa55", "the policy's training draws come from an RNG keyed by (seed, step, rank)"),
+    ("06900d6", "the policy's vocabulary, cameras and angles come from the dataset's contract"),
+)
+FIRST_ERA = f"pre-{ERA_COMMITS[0][0]}"
+#: The keys every record carries (values may be None where a ``provenance`` note says why).
+PROVENANCE_KEYS = ("commit", "code_era", "data_command", "train_command", "eval_command")
+
+
+def code_era(commit: str, root: Path = REPO_ROOT) -> str:
+    """The era (:data:`ERA_COMMITS`) of the code at ``commit`` (``+dirty`` ignored), from the git history."""
+    era = FIRST_ERA
+    for boundary, _ in ERA_COMMITS:
+        command = ["git", "merge-base", "--is-ancestor", boundary, commit.removesuffix("+dirty")]
+        code = subprocess.run(command, cwd=root, capture_output=True).returncode
+        if code not in (0, 1):
+            raise ValueError(f"git cannot order {commit} against {boundary} in {root} (a shallow clone?)")
+        era = boundary if code == 0 else era
+    return era
+
+
+def missing_provenance(record: dict) -> list[str]:
+    """What a record lacks to say where it came from: a provenance key, a commit or the commit that recorded
+    it, or the ``provenance`` note that explains a None."""
+    missing = [key for key in PROVENANCE_KEYS if key not in record]
+    if not (record.get("commit") or record.get("recorded_in")):
+        missing.append("commit or recorded_in")
+    unknown = [key for key in PROVENANCE_KEYS if key in record and record[key] is None]
+    if unknown and not record.get("provenance"):
+        missing.append(f"provenance (a note on the missing {', '.join(unknown)})")
+    return missing
 
 
 def load_records(path: Path = RESULTS_PATH) -> list[dict]:
