@@ -121,6 +121,7 @@ def record_segment(
     rng: np.random.Generator,
     max_steps_per_task: int = 360,
     tasks: tuple[str, ...] = TASK_NAMES,
+    first_task: str | None = None,
 ) -> PlaySegment:
     """Play ``num_tasks`` feasible tasks in a row from a random start state and record every frame.
 
@@ -130,13 +131,15 @@ def record_segment(
         rng: the segment's generator (start state, task choice, expert randomness, annotation choice).
         max_steps_per_task: expert step budget per task (CALVIN's rollout limit is 360).
         tasks: candidate task names.
+        first_task: the segment's first task (its start state is drawn so that it is feasible); None: a
+            random one of ``tasks``.
     """
     from lerobot_subgoalvla.envs.calvin.expert.scripted_expert import ScriptedExpert, is_feasible
     from lerobot_subgoalvla.envs.calvin.expert.start_states import sample_start_state
     from lerobot_subgoalvla.envs.calvin.oracle.tasks import TaskOracle
 
     oracle = TaskOracle()
-    first_task = str(rng.choice(tasks))
+    first_task = first_task or str(rng.choice(tasks))
     sample_start_state(first_task, sim, rng)
     recorder = _Recorder(sim)
     windows, attempted, completed = [], [], []

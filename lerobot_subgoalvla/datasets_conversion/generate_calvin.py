@@ -77,6 +77,10 @@ class GeneratorOptions:
     gripper_size: int = 84
     tasks: tuple[str, ...] = TASK_NAMES
     renderer: str = "tiny"
+    #: Start segment i with the task at i in a seeded cycle over ``tasks`` (instead of a random one), so every
+    #: task opens as many segments: with uniform choices among the *feasible* tasks, tasks feasible in few
+    #: states (most block tasks) get a fraction of the demonstrations the fixtures get.
+    balanced_starts: bool = False
 
     def __post_init__(self) -> None:
         if self.renderer not in RENDERERS:
@@ -110,6 +114,15 @@ class GeneratorOptions:
         """Task count of each segment (the last one takes the remainder)."""
         full, rest = divmod(self.num_tasks, self.tasks_per_segment)
         return [self.tasks_per_segment] * full + ([rest] if rest else [])
+
+    def first_task(self, segment: int) -> str | None:
+        """The task segment ``segment`` starts with under ``balanced_starts``; None: a random one."""
+        if not self.balanced_starts:
+            return None
+        order = np.random.default_rng(np.random.SeedSequence([self.seed, 2**31 - 2])).permutation(
+            len(self.tasks)
+        )
+        return self.tasks[int(order[segment % len(self.tasks)])]
 
     def validation_segments(self) -> set[int]:
         """Segments of the validation split: a seeded random ``val_fraction`` of them (>= 1 if fraction >
@@ -148,7 +161,9 @@ def generate_segment(job: SegmentJob) -> int:
             raise ValueError(
                 f"scene {opts.scene}: simulation slot order {slot_order} differs from calvin_quirks"
             )
-        segment = record_segment(sim, job.num_tasks, rng, opts.max_steps_per_task, opts.tasks)
+        segment = record_segment(
+            sim, job.num_tasks, rng, opts.max_steps_per_task, opts.tasks, opts.first_task(job.index)
+        )
     finally:
         sim.close()
     for t in range(segment.num_frames):
@@ -324,6 +339,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         type=_task_list,
         default=TASK_NAMES,
         help="comma-separated CALVIN tasks the expert may play, e.g. open_drawer,close_drawer (default: all)",
+    )
+    parser.add_argument(
+        "--balanced-starts",
+        action="store_true",
+        help="segments start with each task in turn, not a random one (more demonstrations of rarely "
+        "feasible tasks such as most block tasks)",
     )
     return parser.parse_args(argv)
 

@@ -365,3 +365,13 @@ def test_sigkill_mid_generation_then_rerun_gives_the_uninterrupted_data(tmp_path
     for name in ("training", "validation"):
         _assert_same(_split_contents(killed / name), _split_contents(tmp_path / "reference" / name))
     assert sorted(p.name for p in killed.iterdir()) == ["generator_options.json", "training", "validation"]
+
+
+def test_balanced_starts_open_segments_with_every_task_in_turn() -> None:
+    tasks = ("open_drawer", "lift_red_block_table", "push_pink_block_left", "turn_on_led")
+    opts = GeneratorOptions(num_tasks=16, seed=3, tasks_per_segment=2, tasks=tasks, balanced_starts=True)
+    firsts = [opts.first_task(i) for i in range(len(opts.segment_tasks()))]  # 8 segments: two cycles
+    assert sorted(firsts[:4]) == sorted(tasks) and firsts[4:] == firsts[:4]
+    assert GeneratorOptions(num_tasks=16, seed=3, tasks=tasks).first_task(0) is None  # default: random
+    other_seed = GeneratorOptions(num_tasks=16, seed=4, tasks_per_segment=2, tasks=tasks, balanced_starts=True)
+    assert sorted(other_seed.first_task(i) for i in range(4)) == sorted(tasks)
