@@ -363,7 +363,7 @@ def _evaluate_chains(spec: RunSpec, checkpoint: Path, out: Path) -> dict:
     """CALVIN's chains ``0 .. spec.chains - 1``, one after the other, appended to
     ``eval/lh_mtlc/results.jsonl`` (the demo's layout); a file with fewer chains is continued
     (``--env.resume``: the chains it holds are skipped), so 20 chains of a demo grow to 100 with the same
-    checkpoint. The time is ``lerobot-eval``'s over the finished blocks (``eval/lh_mtlc*/eval_info.json``)."""
+    checkpoint. The time is ``lerobot-eval``'s over the finished blocks (``eval_info.json`` of each)."""
     from lerobot_subgoalvla.envs.calvin.evaluation.results import read_episode_results
 
     results = out / "eval" / LH_MTLC / "results.jsonl"
@@ -390,6 +390,7 @@ def _evaluate_chains(spec: RunSpec, checkpoint: Path, out: Path) -> dict:
     infos = [
         out / "eval" / LH_MTLC / "eval_info.json",
         *(out / "eval").glob(f"{LH_MTLC}_chains*/eval_info.json"),
+        *(out / "eval" / LH_MTLC / "runs").glob("*/eval_info.json"),  # scripts/demo.sh's continuations
     ]
     seconds = sum(json.loads(info.read_text())["overall"]["eval_s"] for info in infos if info.is_file())
     return {
