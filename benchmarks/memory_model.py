@@ -28,20 +28,24 @@ such as rotary tables and masks, are a few kB). With checkpointing, the backward
 activations at a time; the peak adds the largest single block (``recompute_bytes``).
 
 CPU caveats (``docs/memory.md``): CPU autocast casts nearly the same operations to bf16 as CUDA's; the CPU
-attention kernels keep the same per-token tensors as CUDA's memory-efficient and flash kernels (no S x S
-matrix), which the measured bytes show: a LLaVA-1.5 LLM layer keeps about 46 bytes per token and width unit.
+attention kernel keeps, like CUDA's flash and memory-efficient kernels, no S x S attention matrix (checked:
+no saved tensor of that shape).
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import gc
+import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 
 import torch
+from architectures import architecture, build_model, make_config, training_batch
 from torch import nn
 
-from architectures import architecture, build_model, make_config, training_batch
 from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
 
 #: presets measured at full depth (small random models); the others on the reduced copy.
@@ -56,7 +60,7 @@ class Parameters:
 
     total: int
     trainable: int
-    #: parameters outside the blocks an FSDP unit wraps (embeddings, projector, head embedders): the root unit.
+    #: parameters outside the blocks FSDP wraps (embeddings, projector, head embedders): the root unit.
     root: int
     #: parameters of the largest wrapped block (one FSDP unit).
     largest_block: int
@@ -120,27 +124,53 @@ def _is_weight_copy(tensor: torch.Tensor) -> bool:
 
 
 def saved_bytes(model: SubgoalVLAModel, batch: dict[str, torch.Tensor], bf16: bool) -> tuple[int, int]:
-    """(activation bytes, weight-copy bytes) a stage-I forward of ``model`` keeps for the backward pass."""
+    """(activation bytes, weight-copy bytes) a stage-I forward of ``model`` keeps for the backward pass.
+
+    Counted while alive: a tensor saved by an operation whose result is then discarded (a check inside
+    transformers, say) is released with that operation, and its address may be reused by a later tensor;
+    each packed tensor therefore holds its storage's count until autograd drops it.
+    """
     weights = {p.untyped_storage().data_ptr() for p in model.parameters()}
-    seen: set[int] = set()
+    live: dict[int, list[int]] = {}  # storage address -> [references, bytes, kind (0 activation, 1 copy)]
     totals = [0, 0]
+
+    def release(key: int) -> None:
+        entry = live[key]
+        entry[0] -= 1
+        if entry[0] == 0:
+            totals[entry[2]] -= entry[1]
+            del live[key]
 
     def pack(tensor: torch.Tensor) -> torch.Tensor:
         storage = tensor.untyped_storage()
         key = storage.data_ptr()
-        if key and key not in seen and key not in weights:
-            seen.add(key)
-            totals[int(_is_weight_copy(tensor))] += storage.nbytes()
+        if not key or key in weights:
+            return tensor
+        if key not in live:
+            live[key] = [0, storage.nbytes(), int(_is_weight_copy(tensor))]
+            totals[live[key][2]] += storage.nbytes()
+        live[key][0] += 1
+        weakref.finalize(tensor, release, key)
         return tensor
 
     model.train()
+    torch.manual_seed(0)  # the same timesteps, noise and dropout in every run
     with (
         torch.autograd.graph.saved_tensors_hooks(pack, lambda tensor: tensor),
         torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16),
     ):
         loss = model.compute_losses(batch, "stage1")["loss"]
-    del loss  # frees the graph: nothing was kept but the counts
-    return totals[0], totals[1]
+    counted = (totals[0], totals[1])  # what the backward pass would find
+    del loss  # frees the graph
+    _release_memory()
+    return counted
+
+
+def _release_memory() -> None:
+    """Hand freed heap pages back to the OS between runs (glibc keeps them otherwise and the RSS adds up)."""
+    gc.collect()
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
 
 
 def set_checkpointing(model: SubgoalVLAModel, enabled: bool) -> None:
@@ -158,7 +188,12 @@ def kept_blocks(model: SubgoalVLAModel, llm: int, pca: int, dit: int) -> Iterato
     """Run the model with only the first ``llm`` / ``pca`` / ``dit`` blocks of each stack, then restore."""
     lm = model.backbone.vlm.language_model
     owners = {"llm": (lm, "layers", llm)}
-    for name, n in (("planner_aggregator", pca), ("generator_aggregator", pca), ("planner", dit), ("generator", dit)):
+    for name, n in (
+        ("planner_aggregator", pca),
+        ("generator_aggregator", pca),
+        ("planner", dit),
+        ("generator", dit),
+    ):
         owners[name] = (getattr(model, name), "blocks", n)
     full = {name: list(getattr(owner, attribute)) for name, (owner, attribute, _) in owners.items()}
     layers = lm.config.num_hidden_layers
@@ -180,13 +215,17 @@ def reduced_model(preset: str) -> SubgoalVLAModel:
     if preset in FULL_DEPTH:
         return build_model(preset, "cpu", config)
     if not config.backbone.freeze_vision_tower:
-        raise ValueError(f"{preset}: the reduced copy assumes a frozen vision tower (it saves no activations)")
+        raise ValueError(
+            f"{preset}: the reduced copy assumes a frozen vision tower (it saves no activations)"
+        )
     config.backbone.layer = REDUCED
     for head in (config.planner, config.generator):
         head.depth = REDUCED
     for attention in (config.planner_attention, config.generator_attention):
         attention.num_layers = REDUCED
-    return build_model(preset, "cpu", config, architecture(preset, text_layers=REDUCED, vision_layers=REDUCED))
+    return build_model(
+        preset, "cpu", config, architecture(preset, text_layers=REDUCED, vision_layers=REDUCED)
+    )
 
 
 def full_depths(preset: str) -> tuple[int, int, int]:
@@ -218,6 +257,7 @@ def _stack_runs(
 def measure_activations(preset: str, model: SubgoalVLAModel, bf16: bool) -> dict[bool, Activations]:
     """Per-sample activations and per-step weight copies of the full-depth preset, without (False) and with
     (True) gradient checkpointing; see the module docstring."""
+    torch.manual_seed(0)
     batch = training_batch(model, "cpu", batch=1)
     out = {}
     for checkpointing in (False, True):

@@ -6,16 +6,20 @@ Usage::
     python benchmarks/memory_plan.py --presets tiny small --batch-size 16 --gpus 4
 
 Nothing is downloaded: parameters come from the real architectures on the ``meta`` device and activations are
-measured on the CPU (``memory_model.py`` explains how; ``paper`` needs about 6 GB of RAM and a few minutes).
+measured on the CPU (``memory_model.py`` explains how). All four presets took 5 minutes on one thread and a
+peak of 22 GB of RAM (``paper``'s reduced copy: 1.4 B parameters in float32, 16 forward passes); leave
+``paper`` out on a smaller machine.
 
 Training state, bytes per parameter (AdamW as LeRobot builds it, ``P`` all parameters, ``T`` trainable ones,
 stage I: everything but a frozen vision tower): weights 4 P (float32; accelerate's bf16 mode is autocast and
-keeps float32 weights, so the same), gradients 4 T, AdamW's two moments 8 T. The peak per GPU adds, per option:
+keeps float32 weights, so the same), gradients 4 T, AdamW's two moments 8 T. The peak per GPU adds, per
+option:
 
-- DDP (every GPU holds everything): + 4 T of DDP's gradient buckets (accelerate keeps DDP's default copy);
-  + the activations of the batch, B x per-sample + (bf16) autocast's bf16 weight copies saved for backward;
-  or, at the optimizer step, AdamW's temporary (4 x the largest group: torch's multi-tensor AdamW on a GPU)
-  when that is larger than the activations (the activations are freed before the step).
+- one GPU: the activations of the batch, B x per-sample + (bf16) autocast's bf16 weight copies saved for
+  backward; or, at the optimizer step, AdamW's temporary (4 x the largest group: torch's multi-tensor AdamW on
+  a GPU) when that is larger (the activations are freed before the step).
+- DDP (every GPU holds everything): the same + 4 T of DDP's gradient buckets (accelerate keeps DDP's default
+  separate copy).
 - gradient checkpointing (``--policy.gradient_checkpointing=true``): the checkpointed activations, plus one
   block's full activations rebuilt at a time in the backward pass.
 - ZeRO-2 (FSDP ``SHARD_GRAD_OP`` over N GPUs): weights, gradients and AdamW state split N ways; the full
@@ -34,7 +38,6 @@ import argparse
 from dataclasses import dataclass
 
 import torch
-
 from architectures import make_config
 from memory_model import Activations, Parameters, count_parameters, measure_activations, reduced_model
 
@@ -69,6 +72,11 @@ def ddp_peak(plan: Plan, batch: int, checkpointing: bool) -> float:
     return weights + 2 * grads + adam + max(plan.batch_activations(batch, checkpointing, plan.bf16), temp)
 
 
+def single_gpu_peak(plan: Plan, batch: int, checkpointing: bool) -> float:
+    """One GPU: accelerate wraps nothing in DDP, so no gradient buckets."""
+    return ddp_peak(plan, batch, checkpointing) - plan.state_bytes[1]
+
+
 def zero2_peak(plan: Plan, batch: int, checkpointing: bool, gpus: int) -> float:
     weights, grads, adam = plan.state_bytes
     gathered = (2.0 if plan.bf16 else 4.0) * plan.params.total
@@ -89,7 +97,9 @@ def zero3_peak(plan: Plan, batch: int, checkpointing: bool, gpus: int) -> float:
 def measure(preset: str) -> Plan:
     params = count_parameters(preset)
     model = reduced_model(preset)
-    activations = {name: measure_activations(preset, model, bf16) for name, bf16 in (("fp32", False), ("bf16", True))}
+    activations = {
+        name: measure_activations(preset, model, bf16) for name, bf16 in (("fp32", False), ("bf16", True))
+    }
     bf16 = make_config(preset).dtype == "bfloat16"
     return Plan(preset, bf16, params, activations)
 
@@ -114,11 +124,18 @@ def print_tables(plans: list[Plan], batch: int, gpus: int) -> None:
             f"{bf16[False].per_sample / MB:,.1f} | {bf16[True].per_sample / MB:,.1f} | "
             f"{bf16[False].weight_copies / MB:,.0f} | {bf16[False].recompute_bytes / MB:,.1f} |"
         )
-    print(f"\nPeak per GPU, batch {batch} per GPU, the preset's precision (GB; {gpus} GPUs for the sharded columns)")
-    print("| preset | precision | DDP | DDP + ckpt | ZeRO-2 + ckpt | FSDP full shard | FSDP full shard + ckpt |")
-    print("|---|---|---|---|---|---|---|")
+    print(
+        f"\nPeak per GPU, batch {batch} per GPU, the preset's precision "
+        f"(GB; {gpus} GPUs for the sharded columns)"
+    )
+    print(
+        "| preset | precision | 1 GPU + ckpt | DDP | DDP + ckpt | ZeRO-2 + ckpt | FSDP full shard "
+        "| FSDP full shard + ckpt |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
     for plan in plans:
         cells = [
+            single_gpu_peak(plan, batch, True),
             ddp_peak(plan, batch, False),
             ddp_peak(plan, batch, True),
             zero2_peak(plan, batch, True, gpus),
@@ -130,7 +147,9 @@ def print_tables(plans: list[Plan], batch: int, gpus: int) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--presets", nargs="+", default=list(PRESETS), choices=PRESETS)
     parser.add_argument("--batch-size", type=int, default=32, help="samples per GPU (table 8: 32)")
     parser.add_argument("--gpus", type=int, default=8, help="GPUs the sharded options split over (paper: 8)")

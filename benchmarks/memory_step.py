@@ -1,4 +1,4 @@
-"""One real training step of a full-size preset on the CPU, its peak memory measured, next to the plan's figure.
+"""One real training step of a full-size preset on the CPU: its peak memory, measured, next to the plan's.
 
 Usage (needs about 12 GB of free RAM for ``small``; run it alone, it measures the whole process)::
 
@@ -13,7 +13,8 @@ Measured: the process's resident memory (``/proc/self/statm``) after the imports
 the model, and its peak (``resource.getrusage(RUSAGE_SELF).ru_maxrss``: the kernel's high-water mark of
 resident pages, which includes the allocator's slack). Computed, as ``memory_plan.py`` does for a CPU:
 weights + gradients + AdamW moments + the larger of the batch's activations (measured on the reduced copy
-AFTER the peak was recorded) and AdamW's per-tensor temporary (torch's CPU AdamW updates one tensor at a time).
+AFTER the peak was recorded) and AdamW's per-tensor temporary (torch's CPU AdamW updates one tensor at a
+time).
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ import resource
 import time
 
 import torch
-
 from architectures import build_model, training_batch
 from memory_model import count_parameters, measure_activations, reduced_model
 
@@ -58,11 +58,19 @@ def run_steps(preset: str, batch_size: int, steps: int) -> dict[str, float]:
         optimizer.step()
         optimizer.zero_grad()
     seconds = (time.perf_counter() - start) / steps
-    return {"baseline": baseline, "built": built, "peak": peak_bytes(), "seconds": seconds, "loss": loss.item()}
+    return {
+        "baseline": baseline,
+        "built": built,
+        "peak": peak_bytes(),
+        "seconds": seconds,
+        "loss": loss.item(),
+    }
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--preset", default="small", choices=["tiny", "laptop", "small", "paper"])
     parser.add_argument("--batch-size", type=int, default=2)
     parser.add_argument("--steps", type=int, default=2)
@@ -80,12 +88,17 @@ def main() -> None:
     print("| quantity | measured | computed |")
     print("|---|---|---|")
     print(f"| resident after imports | {measured['baseline'] / GB:.2f} GB | |")
-    print(f"| model built (weights) | {(measured['built'] - measured['baseline']) / GB:.2f} GB | {weights / GB:.2f} GB |")
+    print(
+        f"| model built (weights) | {(measured['built'] - measured['baseline']) / GB:.2f} GB "
+        f"| {weights / GB:.2f} GB |"
+    )
     print(f"| gradients + AdamW moments | | {(grads + adam) / GB:.2f} GB |")
     print(f"| activations of the batch / AdamW temporary | | {act / GB:.2f} / {temp / GB:.2f} GB |")
     print(f"| training peak above the imports | {grown / GB:.2f} GB | {computed / GB:.2f} GB |")
     print(f"| difference | {100 * (grown - computed) / computed:+.1f} % | |")
-    print(f"| seconds per step (1 thread), final loss | {measured['seconds']:.1f} s, {measured['loss']:.3f} | |")
+    print(
+        f"| seconds per step (1 thread), final loss | {measured['seconds']:.1f} s, {measured['loss']:.3f} | |"
+    )
 
 
 if __name__ == "__main__":

@@ -24,10 +24,10 @@ import time
 from collections.abc import Callable
 
 import torch
+from architectures import ACTION_DIM, STATE_DIM, build_model, fake_inputs
 from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 
-from architectures import ACTION_DIM, STATE_DIM, build_model, fake_inputs
 from lerobot_subgoalvla.contract.keys import STATE_HISTORY_KEY
 from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
 

@@ -120,10 +120,14 @@ def full_state_dict(model: FullyShardedDataParallel, optimizer: torch.optim.Opti
 
 
 def train(policy: SubgoalVLAPolicy, sharded: Path | None, rank: int) -> tuple[dict, list[float], int]:
-    """lerobot-train's steps; returns the full state dict (rank 0), the losses and the number of FSDP units."""
+    """lerobot-train's steps; returns the full state dict, the losses and the number of FSDP units."""
     # the policy's optimizer preset and groups, built before wrapping, as lerobot-train does
     optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
-    model = fsdp_wrap(policy, sharded) if sharded else DistributedDataParallel(policy, find_unused_parameters=True)
+    model = (
+        fsdp_wrap(policy, sharded)
+        if sharded
+        else DistributedDataParallel(policy, find_unused_parameters=True)
+    )
     losses = []
     for step in range(STEPS):
         loss, _ = model(make_batch(policy, step, rank))

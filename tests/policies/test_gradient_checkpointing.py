@@ -1,4 +1,4 @@
-"""``--policy.gradient_checkpointing``: same loss and gradients, blocks really recomputed, saved with the config.
+"""``--policy.gradient_checkpointing``: same loss and gradients, blocks recomputed, saved with the config.
 
 The memory it saves is measured by ``benchmarks/memory_plan.py`` (docs/memory.md), not here.
 """

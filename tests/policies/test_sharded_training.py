@@ -2,8 +2,8 @@
 
 accelerate runs every CPU launch as DDP, so ``lerobot-train`` cannot be launched sharded without GPUs; the
 worker (``helpers/sharded_training.py``) repeats lerobot-train's steps under FSDP1 built from the shipped
-YAML through accelerate's plugin, across the stage I -> II switch and with gradient checkpointing on. What only
-GPUs can confirm (NCCL, bf16 mixed precision, lerobot-train's own FSDP checkpoint gather) is in
+YAML through accelerate's plugin, across the stage I -> II switch and with gradient checkpointing on. What
+only GPUs can confirm (NCCL, bf16 mixed precision, lerobot-train's own FSDP checkpoint gather) is in
 docs/memory.md.
 """
 
