@@ -24,105 +24,12 @@ import time
 from collections.abc import Callable
 
 import torch
-from lerobot.configs import FeatureType, PolicyFeature
-from lerobot.utils.constants import OBS_LANGUAGE_ATTENTION_MASK, OBS_LANGUAGE_TOKENS
+from architectures import ACTION_DIM, STATE_DIM, build_model, fake_inputs
 from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
-from transformers import CLIPVisionConfig, LlamaConfig, LlavaConfig, Qwen2Config, SiglipVisionConfig
 
-from lerobot_subgoalvla.calvin_vocab import ALL_INSTRUCTIONS
-from lerobot_subgoalvla.contract.calvin import GRIPPER_CAMERA_KEY, STATIC_CAMERA_KEY
-from lerobot_subgoalvla.contract.keys import ACTION_KEY, STATE_HISTORY_KEY, STATE_KEY
-from lerobot_subgoalvla.policies.subgoalvla.backbone import VLMBackbone
-from lerobot_subgoalvla.policies.subgoalvla.config_components import BackboneConfig
-from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
+from lerobot_subgoalvla.contract.keys import STATE_HISTORY_KEY
 from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
-from lerobot_subgoalvla.policies.subgoalvla.tokenizer import vocabulary_words
-
-STATE_DIM, ACTION_DIM = 15, 7
-
-
-def architecture(preset: str) -> LlavaConfig | None:
-    """The backbone architecture of a preset (facts from the checkpoints' config.json); None = tiny."""
-    if preset == "paper":  # llava-hf/llava-1.5-7b-hf
-        return LlavaConfig(
-            vision_config=CLIPVisionConfig(
-                hidden_size=1024,
-                intermediate_size=4096,
-                num_hidden_layers=24,
-                num_attention_heads=16,
-                image_size=336,
-                patch_size=14,
-                projection_dim=768,
-            ),
-            text_config=LlamaConfig(
-                vocab_size=32064,
-                hidden_size=4096,
-                intermediate_size=11008,
-                num_hidden_layers=32,
-                num_attention_heads=32,
-            ),
-            image_token_index=32000,
-        )
-    if preset == "small":  # llava-hf/llava-interleave-qwen-0.5b-hf
-        return LlavaConfig(
-            vision_config=SiglipVisionConfig(
-                hidden_size=1152,
-                intermediate_size=4304,
-                num_hidden_layers=26,
-                num_attention_heads=16,
-                image_size=384,
-                patch_size=14,
-                vision_use_head=False,
-            ),
-            text_config=Qwen2Config(
-                vocab_size=152000,
-                hidden_size=1024,
-                intermediate_size=2816,
-                num_hidden_layers=24,
-                num_attention_heads=16,
-                num_key_value_heads=16,
-                tie_word_embeddings=True,
-            ),
-            image_token_index=151646,
-            vision_feature_select_strategy="full",
-            vision_feature_layer=-1,
-        )
-    return None
-
-
-#: presets with a tiny random backbone, whose vocabulary comes from the training data.
-TINY = ("tiny", "laptop")
-
-
-def make_config(preset: str) -> SubgoalVLAConfig:
-    features = {
-        STATE_KEY: PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,)),
-        STATIC_CAMERA_KEY: PolicyFeature(type=FeatureType.VISUAL, shape=(3, 200, 200)),
-        GRIPPER_CAMERA_KEY: PolicyFeature(type=FeatureType.VISUAL, shape=(3, 84, 84)),
-    }
-    actions = {ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
-    # a tiny backbone's vocabulary comes from the training data; here CALVIN's, as lerobot-train would fill it
-    backbone = BackboneConfig(vocabulary=list(vocabulary_words(ALL_INSTRUCTIONS)) if preset in TINY else None)
-    return SubgoalVLAConfig(
-        preset=preset, input_features=features, output_features=actions, backbone=backbone
-    )
-
-
-def build_model(preset: str, device: str) -> SubgoalVLAModel:
-    """The preset's model on ``device`` (``meta`` for sizes/FLOPs) without downloading weights."""
-    config = make_config(preset)
-    bb = config.backbone
-    with torch.device(device):
-        backbone = VLMBackbone(
-            None,
-            bb.layer,
-            bb.freeze_vision_tower,
-            tiny=config.backbone.tiny_dims(),
-            torch_dtype=bb.torch_dtype if device != "cpu" else "float32",
-            vlm_config=architecture(preset),
-        )
-        return SubgoalVLAModel(config, backbone=backbone).eval()
 
 
 def count(params: list[nn.Parameter] | nn.Module | None) -> int:
@@ -146,20 +53,6 @@ def parameter_row(model: SubgoalVLAModel) -> dict[str, float]:
         "DiT planner": count(model.planner),
         "DiT generator": count(model.generator),
         "total (built)": count(model),
-    }
-
-
-def fake_inputs(model: SubgoalVLAModel, device: str, batch: int = 1) -> dict[str, torch.Tensor]:
-    spec = model.backbone.input_spec
-    length = spec.num_image_tokens + model.config.backbone.max_instruction_tokens
-    ids = torch.zeros(batch, length, dtype=torch.long, device=device)
-    ids[:, : spec.num_image_tokens] = spec.image_token_id
-    return {
-        STATIC_CAMERA_KEY: torch.rand(batch, 3, 200, 200, device=device),
-        GRIPPER_CAMERA_KEY: torch.rand(batch, 3, 84, 84, device=device),
-        OBS_LANGUAGE_TOKENS: ids,
-        OBS_LANGUAGE_ATTENTION_MASK: torch.ones(batch, length, dtype=torch.long, device=device),
-        STATE_HISTORY_KEY: torch.randn(batch, model.config.state_history_len, STATE_DIM, device=device),
     }
 
 

@@ -80,3 +80,13 @@ def test_dit_b_parameter_count() -> None:
     assert 84e6 < body < 86e6
     assert 42e6 < adaln < 43e6
     assert 130e6 < count_parameters(model) < 135e6
+
+
+def test_every_parameter_has_a_dimension_and_old_scalar_checkpoints_load() -> None:
+    """FSDP refuses 0-d parameters; checkpoints saved when pos_scale was 0-d still load (reshaped)."""
+    model = _dit()
+    assert all(p.dim() >= 1 for p in model.parameters())
+    state = model.state_dict()
+    state["pos_scale"] = torch.tensor(0.5)  # the old 0-d layout
+    model.load_state_dict(state)
+    assert model.pos_scale.shape == (1,) and model.pos_scale.item() == 0.5

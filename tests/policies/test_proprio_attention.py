@@ -101,3 +101,13 @@ def test_short_sequences_mark_missing_selections_invalid() -> None:
 def test_unknown_aggregation_is_rejected() -> None:
     with pytest.raises(ValueError, match="proprio_xattn, mean, max, attn"):
         build_aggregator("median", **SIZES, attention=ATTENTION, top_k=4)
+
+
+def test_attention_pooling_scale_has_a_dimension_and_old_scalar_checkpoints_load() -> None:
+    """FSDP refuses 0-d parameters; checkpoints saved when score_scale was 0-d still load (reshaped)."""
+    module = TopKTokenPooling("attn", P, Q, E, D, top_k=3)
+    assert all(p.dim() >= 1 for p in module.parameters())
+    state = module.state_dict()
+    state["score_scale"] = torch.tensor(0.25)
+    module.load_state_dict(state)
+    assert module.score_scale.shape == (1,) and module.score_scale.item() == 0.25

@@ -303,6 +303,15 @@ class VLMBackbone(nn.Module):
         lm.norm = nn.Identity()
         lm.config.num_hidden_layers = k
 
+    def enable_gradient_checkpointing(self) -> None:
+        """Recompute each kept decoder layer in the backward pass instead of storing its activations.
+
+        transformers' own switch (``gradient_checkpointing_enable``), non-reentrant. It acts in training mode
+        only, so the frozen vision tower (always in eval mode, no graph) is unaffected. Each layer then keeps
+        only its input hidden states; ``docs/memory.md`` has the saving per preset.
+        """
+        self.vlm.gradient_checkpointing_enable(gradient_checkpointing_kwargs={"use_reentrant": False})
+
     def train(self, mode: bool = True) -> VLMBackbone:
         """Switch modes but keep a frozen vision tower in eval mode (no dropout/batch-stat updates)."""
         super().train(mode)

@@ -143,6 +143,10 @@ class SubgoalVLAConfig(PreTrainedConfig, DatasetFitting):
     # training precision read by `lerobot-train`: `bfloat16` = accelerate bf16 mixed precision (float32
     # weights, bf16 autocast), `float32` = full precision.
     dtype: str | None = None
+    # recompute the activations of the LLM layers, cross-attention and DiT blocks in the backward pass instead
+    # of storing them: same loss and gradients, one extra forward of those blocks, far less memory
+    # (docs/memory.md).
+    gradient_checkpointing: bool = False
     # indices of wrapping angles in `observation.state` (CALVIN's converter records 3, 4, 5); unset: the
     # dataset's metadata, or none. `[]` switches a dataset's angles off. Other dims are z-scored.
     state_angle_dims: tuple[int, ...] | None = None

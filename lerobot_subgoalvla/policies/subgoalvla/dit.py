@@ -36,6 +36,7 @@ from typing import Any
 
 import torch
 from torch import Tensor, nn
+from torch.utils.checkpoint import checkpoint
 
 
 def modulate(x: Tensor, shift: Tensor, scale: Tensor) -> Tensor:
@@ -143,6 +144,9 @@ class DiT(nn.Module):
 
     No dropout inside the blocks, as in DiT and CogACT's action head: the only regulariser is label dropout
     (``drop_cond``), which classifier-free guidance needs.
+
+    ``gradient_checkpointing`` (set by ``SubgoalVLAConfig.gradient_checkpointing``): in training, each block
+    keeps only its input and recomputes its activations during the backward pass (``docs/memory.md``).
     """
 
     def __init__(
@@ -163,10 +167,19 @@ class DiT(nn.Module):
         self.z_embedder = nn.Linear(cond_dim, hidden_dim)  # z = projected conditioning features
         self.null_z = nn.Parameter(torch.zeros(hidden_dim))  # label-dropout token for CFG
         self.z_pool_proj = nn.Linear(hidden_dim, hidden_dim)  # pooled z -> adaLN conditioning
-        self.pos_scale = nn.Parameter(torch.ones(()))  # learned global scale of the sinusoidal positions
+        # learned global scale of the sinusoidal positions; shape (1,), not (): FSDP refuses 0-d parameters
+        self.pos_scale = nn.Parameter(torch.ones(1))
         self.blocks = nn.ModuleList(DiTBlock(hidden_dim, num_heads, mlp_ratio) for _ in range(depth))
         self.final_layer = FinalLayer(hidden_dim, input_dim)
+        self.gradient_checkpointing = False
         self.initialize_weights()
+
+    def _load_from_state_dict(self, state_dict: dict[str, Tensor], prefix: str, *args: Any) -> None:
+        # Checkpoints saved before the sharded-training support hold pos_scale as a 0-d tensor.
+        key = f"{prefix}pos_scale"
+        if key in state_dict and state_dict[key].ndim == 0:
+            state_dict[key] = state_dict[key].reshape(1)
+        super()._load_from_state_dict(state_dict, prefix, *args)
 
     def initialize_weights(self) -> None:
         """DiT initialisation: Xavier linears, N(0, 0.02) embedders, adaLN-zero.
@@ -249,8 +262,12 @@ class DiT(nn.Module):
         if z_valid is not None:
             x_valid = torch.ones(x.shape[:2], dtype=torch.bool, device=x.device)
             key_padding_mask = ~torch.cat([z_valid, x_valid], dim=1)
+        checkpointed = self.gradient_checkpointing and self.training and torch.is_grad_enabled()
         for block in self.blocks:
-            tokens = block(tokens, c, key_padding_mask)
+            if checkpointed:
+                tokens = checkpoint(block, tokens, c, key_padding_mask, use_reentrant=False)
+            else:
+                tokens = block(tokens, c, key_padding_mask)
         return self.final_layer(tokens[:, -num_x:], c)  # (B, T, X)
 
 

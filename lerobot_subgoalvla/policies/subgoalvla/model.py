@@ -124,9 +124,22 @@ class SubgoalVLAModel(nn.Module):
         generator_queries = h + m if config.use_planner else h
         self.generator_aggregator = self._aggregator(config.generator_attention, generator_queries, width)
         self.generator = _dit(config.generator, self.action_dim, width)
+        if config.gradient_checkpointing:
+            self.enable_gradient_checkpointing()
         norms = config.normalization_mapping
         self.planner_objective = _objective(config.planner, norms[FeatureType.STATE.value])  # trace = states
         self.generator_objective = _objective(config.generator, norms[FeatureType.ACTION.value])
+
+    def enable_gradient_checkpointing(self) -> None:
+        """Activation checkpointing of the kept LLM layers, the cross-attention blocks and the DiT blocks.
+
+        Trades one extra forward pass of those blocks for storing only their inputs (``docs/memory.md``);
+        the loss and gradients are the same. The pooling ablations have no blocks to checkpoint.
+        """
+        self.backbone.enable_gradient_checkpointing()
+        for module in (self.planner_aggregator, self.generator_aggregator, self.planner, self.generator):
+            if module is not None and hasattr(module, "gradient_checkpointing"):
+                module.gradient_checkpointing = True
 
     def _aggregator(self, attn: CrossAttentionConfig, num_queries: int, width: int) -> nn.Module:
         # The aggregator works at the VLM's width E (its features are the DiT's conditioning tokens).

@@ -39,10 +39,11 @@ dim, ``S`` VLM tokens, ``E`` VLM width, ``D`` feature width, ``K`` selected toke
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import torch
 from torch import Tensor, nn
+from torch.utils.checkpoint import checkpoint
 
 if TYPE_CHECKING:
     from lerobot_subgoalvla.policies.subgoalvla.config_components import CrossAttentionConfig
@@ -129,6 +130,10 @@ class ProprioCrossAttention(nn.Module):
         num_heads: attention heads.
         mlp_ratio: MLP expansion.
         dropout: dropout probability.
+
+    ``gradient_checkpointing`` (set by ``SubgoalVLAConfig.gradient_checkpointing``): in training, each block
+    keeps only its inputs and recomputes its activations (its keys and values over the S VLM tokens are the
+    large part) during the backward pass; dropout draws the same masks again (``docs/memory.md``).
     """
 
     def __init__(
@@ -149,6 +154,7 @@ class ProprioCrossAttention(nn.Module):
             for _ in range(num_layers)
         )
         self.norm_out = nn.LayerNorm(dim)  # LN_out of the module docstring
+        self.gradient_checkpointing = False
 
     def forward(
         self, proprio: Tensor, encoder_hidden_states: Tensor, encoder_attention_mask: Tensor | None
@@ -159,8 +165,10 @@ class ProprioCrossAttention(nn.Module):
             features (B, Q, D) and their mask: None, every query token is a valid feature.
         """
         hidden_states = self.queries(proprio)  # (B, Q, D)
+        checkpointed = self.gradient_checkpointing and self.training and torch.is_grad_enabled()
         for block in self.blocks:
-            hidden_states = block(hidden_states, encoder_hidden_states, encoder_attention_mask)
+            args = (hidden_states, encoder_hidden_states, encoder_attention_mask)
+            hidden_states = checkpoint(block, *args, use_reentrant=False) if checkpointed else block(*args)
         return self.norm_out(hidden_states), None
 
 
@@ -194,7 +202,15 @@ class TopKTokenPooling(nn.Module):
         self.token_proj = nn.Sequential(nn.LayerNorm(encoder_dim), nn.Linear(encoder_dim, dim))
         if method == "attn":
             self.score_query = nn.Parameter(torch.randn(encoder_dim) / encoder_dim**0.5)
-            self.score_scale = nn.Parameter(torch.tensor(1.0 / encoder_dim**0.5))
+            # shape (1,), not (): FSDP refuses 0-d parameters
+            self.score_scale = nn.Parameter(torch.full((1,), 1.0 / encoder_dim**0.5))
+
+    def _load_from_state_dict(self, state_dict: dict[str, Tensor], prefix: str, *args: Any) -> None:
+        # Checkpoints saved before the sharded-training support hold score_scale as a 0-d tensor.
+        key = f"{prefix}score_scale"
+        if key in state_dict and state_dict[key].ndim == 0:
+            state_dict[key] = state_dict[key].reshape(1)
+        super()._load_from_state_dict(state_dict, prefix, *args)
 
     def token_scores(self, encoder_hidden_states: Tensor, valid: Tensor) -> Tensor:
         """Args: encoder_hidden_states (B, S, E); valid (B, S) bool. Returns (B, S) scores, -inf on
