@@ -115,7 +115,10 @@ def print_tables(plans: list[Plan], batch: int, gpus: int) -> None:
             f"{w / GB:.2f} GB | {g / GB:.2f} GB | {a / GB:.2f} GB | {(w + g + a) / GB:.2f} GB |"
         )
     print("\nActivations kept for backward, per sample (MB, measured; stage I)")
-    print("| preset | fp32 | fp32 + ckpt | bf16 | bf16 + ckpt | bf16 weight copies / step | rebuilt block (bf16) |")
+    print(
+        "| preset | fp32 | fp32 + ckpt | bf16 | bf16 + ckpt | bf16 weight copies / step "
+        "| rebuilt block (bf16) |"
+    )
     print("|---|---|---|---|---|---|---|")
     for plan in plans:
         fp32, bf16 = plan.activations["fp32"], plan.activations["bf16"]

@@ -373,5 +373,5 @@ def test_balanced_starts_open_segments_with_every_task_in_turn() -> None:
     firsts = [opts.first_task(i) for i in range(len(opts.segment_tasks()))]  # 8 segments: two cycles
     assert sorted(firsts[:4]) == sorted(tasks) and firsts[4:] == firsts[:4]
     assert GeneratorOptions(num_tasks=16, seed=3, tasks=tasks).first_task(0) is None  # default: random
-    other_seed = GeneratorOptions(num_tasks=16, seed=4, tasks_per_segment=2, tasks=tasks, balanced_starts=True)
-    assert sorted(other_seed.first_task(i) for i in range(4)) == sorted(tasks)
+    reseeded = GeneratorOptions(num_tasks=16, seed=4, tasks_per_segment=2, tasks=tasks, balanced_starts=True)
+    assert sorted(reseeded.first_task(i) for i in range(4)) == sorted(tasks)

@@ -1,5 +1,5 @@
-"""subgoalvla-plot-traces: usage errors are one line (the plotted rollout itself is tested in Meta-World's env,
-tests/metaworld/test_subgoalvla_metaworld.py)."""
+"""subgoalvla-plot-traces: usage errors are one line (the plotted rollout itself is tested in Meta-World's
+env, tests/metaworld/test_subgoalvla_metaworld.py)."""
 
 from __future__ import annotations
 
