@@ -74,4 +74,3 @@ def test_the_planned_traces_of_a_metaworld_episode_are_plotted(checkpoint: Path,
     figure = tmp_path / "trace_plot.png"
     trace_plot.plot_trace_rollout(result, figure)
     assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-
