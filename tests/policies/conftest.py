@@ -66,6 +66,7 @@ def make_config(tiny_dataset: LeRobotDataset) -> Callable[..., SubgoalVLAConfig]
     def factory(**overrides: Any) -> SubgoalVLAConfig:
         features = dataset_to_policy_features(tiny_dataset.meta.features)
         overrides.setdefault("backbone", calvin_backbone())
+        overrides.setdefault("preset", "tiny")  # the default is laptop
         return SubgoalVLAConfig(
             device="cpu",
             chunk_size=CHUNK_SIZE,

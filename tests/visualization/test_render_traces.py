@@ -27,6 +27,7 @@ N_ACTION_STEPS, STEPS = 3, 6  # two chunks planned
 
 def _config(dataset: Any, **overrides: Any) -> SubgoalVLAConfig:
     features = dataset_to_policy_features(dataset.meta.features)
+    overrides.setdefault("preset", "tiny")  # the default is laptop
     return SubgoalVLAConfig(
         device="cpu",
         backbone=calvin_backbone(),
