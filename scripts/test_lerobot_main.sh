@@ -89,7 +89,7 @@ case "$SOURCE" in
         ;;
 esac
 
-# 2. The separate venv (Python 3.12, as LeRobot requires) with uv, which reuses the shared download cache.
+# 2. The separate venv (Python 3.12, as LeRobot requires) with uv, which reuses its download cache (torch is not fetched again).
 if [ ! -x "$VENV/bin/python" ]; then
     source "$REPO_ROOT/scripts/find_python312.sh"
     PYTHON312="$(find_python312)"
