@@ -5,7 +5,7 @@ index), then the expert acts until the oracle (``TaskOracle.is_completed``) fire
 subtask budget, 360) pass. Prints task | successes/episodes | rate | mean steps (successful episodes).
 
     python benchmarks/expert_success.py --scene procedural --episodes 20
-    python benchmarks/expert_success.py --scene calvin_D --assets-dir ../shared/calvin_env_assets --workers 2
+    python benchmarks/expert_success.py --scene calvin_D --assets-dir /path/to/calvin_env --workers 2
     python benchmarks/expert_success.py --tasks open_drawer lift_red_block_table --episodes 5
 """
 

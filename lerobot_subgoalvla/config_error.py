@@ -12,6 +12,8 @@ flag and the allowed values).
 that does not fit the policy. LeRobot finds it after parsing, in ``make_policy``, and lets it end the process
 with a traceback; the plugin installs a ``sys.excepthook`` (:func:`install_one_line_excepthook`) that prints
 this error type as one ``error: ...`` line and exits 1, and leaves every other exception to the previous hook.
+A ``ConfigError`` found after parsing (a ``--policy.dtype`` that asks for an autocast the training step does
+not get) is printed the same way.
 """
 
 from __future__ import annotations
@@ -36,13 +38,14 @@ class DatasetContractError(ValueError):
 
 
 def install_one_line_excepthook() -> None:
-    """Print an uncaught :class:`DatasetContractError` as one line (exit status 1, as any uncaught error)."""
+    """Print an uncaught :class:`DatasetContractError` or :class:`ConfigError` (one found after parsing,
+    such as a precision the training step does not get) as one line (exit status 1, as any uncaught error)."""
     previous = sys.excepthook
     if getattr(previous, "_subgoalvla_one_line", False):
         return
 
     def hook(exc_type, exc, traceback) -> None:
-        if issubclass(exc_type, DatasetContractError):
+        if issubclass(exc_type, DatasetContractError | ConfigError):
             logger.error("error: %s", exc)
         else:
             previous(exc_type, exc, traceback)

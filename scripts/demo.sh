@@ -30,10 +30,12 @@ FIXTURE_TASKS=(open_drawer close_drawer move_slider_left move_slider_right turn_
 case "${DEMO_PROFILE:-cpu}" in
     # cpu: nothing is downloaded (random backbone); gpu: the small preset fetches its pretrained VLM once
     cpu) PRESET=laptop; TASKS=240; STEPS=2500; BATCH=32; EPISODES=10; CHAINS=20; DEVICE=cpu; TRAIN_TASKS=fixtures
-         export HF_HUB_OFFLINE=1 ;;
+         PRECISION=no; export HF_HUB_OFFLINE=1 ;;
     all34) PRESET=laptop; TASKS=900; STEPS=6000; BATCH=32; EPISODES=10; CHAINS=100; DEVICE=cpu; TRAIN_TASKS=all
-         export HF_HUB_OFFLINE=1 ;;
-    gpu) PRESET=small; TASKS=2400; STEPS=30000; BATCH=32; EPISODES=20; CHAINS=100; DEVICE=cuda; TRAIN_TASKS=all ;;
+         PRECISION=no; export HF_HUB_OFFLINE=1 ;;
+    # the small preset trains in bf16 mixed precision (its dtype; LeRobot after 0.6.1 also needs the flag)
+    gpu) PRESET=small; TASKS=2400; STEPS=30000; BATCH=32; EPISODES=20; CHAINS=100; DEVICE=cuda; TRAIN_TASKS=all
+         PRECISION=bf16 ;;
     *) echo "demo.sh: DEMO_PROFILE=${DEMO_PROFILE} is not valid; use cpu, all34 or gpu" >&2; exit 2 ;;
 esac
 OUT="${DEMO_DIR:-outputs/demo}"
@@ -75,7 +77,7 @@ resumable_train "$OUT/train" "$OUT/train.log" --policy.type=subgoalvla --policy.
     --policy.push_to_hub=false --policy.device="$DEVICE" --policy.stage2_start_step=$((STEPS * 4 / 5)) \
     --dataset.repo_id=local/calvin_demo --dataset.root="$OUT/dataset" --dataset.video_backend=pyav \
     --steps="$STEPS" --batch_size="$BATCH" --num_workers=1 --log_freq=50 --save_freq=$((STEPS / 4)) --seed=0 \
-    --wandb.enable=false
+    --wandb.enable=false $(mixed_precision_flag "$PRECISION")
 
 stage "4/5 evaluate: ${#EVAL_TASKS[@]} tasks x $EPISODES episodes, then $CHAINS LH-MTLC chains -> $OUT/eval"
 for task in "${EVAL_TASKS[@]}"; do

@@ -4,21 +4,7 @@ set -euo pipefail
 REPO_ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$REPO_ROOT/.venv"
 
-find_python312() {
-    local candidates=(python3.12)
-    if command -v pyenv >/dev/null 2>&1; then
-        candidates+=("$(pyenv root)"/versions/3.12*/bin/python3.12)
-    fi
-    candidates+=("$HOME"/.pyenv/versions/3.12*/bin/python3.12 /usr/local/bin/python3.12 /usr/bin/python3.12)
-    for candidate in "${candidates[@]}"; do
-        if "$candidate" -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1; then
-            command -v "$candidate" 2>/dev/null || echo "$candidate"
-            return 0
-        fi
-    done
-    echo "setup_venv.sh: no Python 3.12 found (tried python3.12 and pyenv versions); install Python 3.12" >&2
-    return 1
-}
+source "$REPO_ROOT/scripts/find_python312.sh"
 
 if [ ! -x "$VENV/bin/python" ]; then
     PYTHON312="$(find_python312)"

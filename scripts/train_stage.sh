@@ -14,3 +14,13 @@ resumable_train() {
     fi
     touch "$out/.done"
 }
+
+# lerobot-train's mixed-precision flag where LeRobot has one (after 0.6.1), else nothing: LeRobot 0.6.1 takes the
+# precision from the policy's dtype and rejects the flag; later versions take it from the flag only.
+#   mixed_precision_flag bf16|fp16|no
+mixed_precision_flag() {
+    if python -c 'import dataclasses, sys; from lerobot.configs.train import TrainPipelineConfig as C
+sys.exit("accelerator" not in {f.name for f in dataclasses.fields(C)})' 2>/dev/null; then
+        echo "--accelerator.mixed_precision=$1"
+    fi
+}

@@ -159,6 +159,7 @@ def test_stage_two_run_starts_from_a_stage_one_checkpoint(
 
 
 @pytest.mark.slow
+@pytest.mark.lerobot_contract
 def test_lerobot_eval_runs_a_checkpoint_on_the_calvin_env(
     trained_run: tuple[Path, str], tmp_path: Path
 ) -> None:

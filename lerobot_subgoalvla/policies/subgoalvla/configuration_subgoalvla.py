@@ -23,7 +23,9 @@ rebuilds exactly the same model):
   cannot use its cameras); for the unit tests and smoke runs only.
 
 Precision: ``small``/``paper`` train in bf16 mixed precision (float32 weights, ``dtype=bfloat16`` = accelerate
-autocast in ``lerobot-train``); bf16 weights would round most lr-2e-5 updates away (docs/policy.md).
+autocast in ``lerobot-train``); bf16 weights would round most lr-2e-5 updates away (docs/policy.md). LeRobot
+0.6.1 sets the autocast from ``dtype``; LeRobot main only from ``--accelerator.mixed_precision=bf16``, and a
+training step without it stops with that flag in its message (docs/lerobot_versions.md).
 
 Where the paper is inconsistent (DiT heads 8 or 12, 8 diffusion steps vs DDIM 10, the executed part of a
 chunk, the guidance scales) the config follows the more specific statement; docs/model.md lists each choice.
@@ -144,8 +146,8 @@ class SubgoalVLAConfig(PreTrainedConfig, DatasetFitting):
     # the heads' learning rate at the end of each stage's cosine (3e-6, section 5); the other groups decay by
     # the same factor. A stage I -> II switch restarts warmup and cosine (`schedule.py`).
     scheduler_decay_lr: float | None = None
-    # training precision read by `lerobot-train`: `bfloat16` = accelerate bf16 mixed precision (float32
-    # weights, bf16 autocast), `float32` = full precision.
+    # training precision: `bfloat16` = bf16 mixed precision (float32 weights, bf16 autocast), `float32` = full
+    # precision. LeRobot 0.6.1's lerobot-train applies it; later ones need --accelerator.mixed_precision=bf16.
     dtype: str | None = None
     # recompute the activations of the LLM layers, cross-attention and DiT blocks in the backward pass instead
     # of storing them: same loss and gradients, one extra forward of those blocks, far less memory

@@ -21,6 +21,10 @@ The policy is thin: the computation lives in ``model.py``; this module does the 
   it as ghost robots (paper figure 7, ``subgoalvla-render-traces``) without a second model pass.
 - Hub: loading or pushing a Hub id while ``HF_HUB_OFFLINE=1`` fails with one line naming the local
   alternative.
+- LeRobot versions: the same code runs on LeRobot 0.6.1 and on main (``lerobot_compat.py``): both
+  ``_save_pretrained`` signatures, ``drop_queued_actions`` (main's hook for a new instruction mid-episode),
+  ``_fsdp_wrap_modules`` (main's FSDP2 wrap units) and a stop when ``dtype`` asks for mixed precision that the
+  training step does not get.
 
 Dimension legend (the package's, ``__init__.py``): ``B`` batch / parallel envs, ``N`` chunk size, ``A`` action
 dim, ``h`` history steps, ``p`` proprio dim.
@@ -33,7 +37,7 @@ import logging
 from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 from huggingface_hub import is_offline_mode
@@ -45,6 +49,12 @@ from lerobot_subgoalvla.config_error import DatasetContractError
 from lerobot_subgoalvla.contract.keys import STATE_HISTORY_KEY, STATE_KEY, TASK_KEY, TRACE_COLUMNS
 from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import SubgoalVLAConfig
 from lerobot_subgoalvla.policies.subgoalvla.dataset_features import ADD_TRACES_COMMAND, dataset_instructions
+from lerobot_subgoalvla.policies.subgoalvla.lerobot_compat import (
+    BASE_SAVE_TAKES_STATE_DICT,
+    model_card,
+    require_autocast,
+    write_state_dict,
+)
 from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
 from lerobot_subgoalvla.policies.subgoalvla.state_history import StateHistoryBuffer
 from lerobot_subgoalvla.policies.subgoalvla.tokenizer import vocabulary_words
@@ -82,6 +92,17 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
 
     config_class = SubgoalVLAConfig
     name = "subgoalvla"
+    #: FSDP2 wrap units for ``lerobot-train --parallelism.dp_shard`` (LeRobot main reads them from the class):
+    #: the DiT blocks, the proprioceptive cross-attention blocks, and the layers of the LLaVA-1.5-layout
+    #: backbones (LLaMA + CLIP: the tiny, laptop and paper presets). The small preset's backbone (Qwen2 +
+    #: SigLIP) needs --accelerator.fsdp.wrap_modules naming Qwen2DecoderLayer and SiglipEncoderLayer instead
+    #: (docs/lerobot_versions.md).
+    _fsdp_wrap_modules: ClassVar[list[str]] = [
+        "DiTBlock",
+        "ProprioCrossAttentionBlock",
+        "LlamaDecoderLayer",
+        "CLIPEncoderLayer",
+    ]
 
     def __init__(self, config: SubgoalVLAConfig, dataset_meta: Any | None = None, **kwargs: Any) -> None:
         super().__init__(config)
@@ -139,6 +160,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
             raise DatasetContractError(
                 f"SubgoalVLA trains on {missing}, which the batch lacks; add them with `{ADD_TRACES_COMMAND}`"
             )
+        if self.training:
+            require_autocast(self.config.dtype, self.optimizer_steps.device.type)
         stage = self.stage
         with self._step_rng():
             losses = self.model.compute_losses(batch, stage)
@@ -222,10 +245,18 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
             self.reset()
         elif tasks is not None and self._last_tasks is not None and tasks != self._last_tasks:
             changed = torch.tensor([new != old for new, old in zip(tasks, self._last_tasks, strict=True)])
-            self._queue.clear()
+            self.drop_queued_actions()
             self._history.reset(changed)
         self._num_envs = num_envs
         self._last_tasks = tasks
+
+    def drop_queued_actions(self) -> None:
+        """Forget the queued actions, so that the next ``select_action`` predicts a new chunk.
+
+        LeRobot main calls it when the instruction changes mid-episode (its rollout's task switch); the policy
+        calls it itself when ``batch["task"]`` changes. The state history stays (``reset()`` clears it).
+        """
+        self._queue.clear()
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs: Any) -> Tensor:
@@ -318,6 +349,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         self,
         save_directory: str | Path,
         *,
+        state_dict: dict[str, Tensor] | None = None,
         card_kwargs: dict[str, Any] | None = None,
         push_to_hub: bool = False,
         repo_id: str | None = None,
@@ -325,24 +357,34 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
     ) -> str | None:
         """Save config + weights; with ``card_kwargs`` (e.g. ``{"dataset_repo_id": ...}``) also a model card.
 
-        LeRobot's ``generate_model_card`` validates the card with the Hub, so the card needs a connection; it
-        is always written when pushing (``push_to_hub`` saves through this method).
+        ``state_dict``: a full state dict the caller gathered (LeRobot 0.6.1's FSDP checkpointing passes one);
+        None saves the policy's own. LeRobot's model card is validated with the Hub, so the card needs a
+        connection; it is always written when pushing (``push_to_hub`` saves through this method).
 
         ``push_to_hub=True`` then uploads the directory (``repo_id`` defaults to its name).
         """
-        state_dict = kwargs.pop("state_dict", None)
-        super().save_pretrained(save_directory, state_dict=state_dict)
+        save_directory = Path(save_directory)
+        save_directory.mkdir(parents=True, exist_ok=True)
+        self._save_pretrained(save_directory, state_dict=state_dict)
         if card_kwargs is not None:
-            card = self.generate_model_card(
-                card_kwargs.get("dataset_repo_id", "unknown"),
-                self.config.type,
-                self.config.license,
-                self.config.tags,
-            )
-            card.save(str(Path(save_directory) / "README.md"))
+            card = model_card(self, card_kwargs.get("dataset_repo_id", "unknown"))
+            card.save(str(save_directory / "README.md"))
         if push_to_hub:
             return self.push_to_hub(repo_id or Path(save_directory).name, card_kwargs=card_kwargs, **kwargs)
         return None
+
+    def _save_pretrained(self, save_directory: Path, state_dict: dict[str, Tensor] | None = None) -> None:
+        """Config + weights into ``save_directory``, under either LeRobot's signature of this hook.
+
+        LeRobot 0.6.1 calls it with a pre-gathered ``state_dict`` (or None), main with the directory alone
+        (its base gathers a sharded policy itself). A given ``state_dict`` is written on both.
+        """
+        if state_dict is None:
+            super()._save_pretrained(save_directory)
+        elif BASE_SAVE_TAKES_STATE_DICT:
+            super()._save_pretrained(save_directory, state_dict=state_dict)
+        else:
+            write_state_dict(self.config, state_dict, save_directory)
 
     def push_to_hub(self, repo_id: str, *, card_kwargs: dict[str, Any] | None = None, **kwargs: Any) -> str:
         """Upload config, weights and a model card to ``repo_id``; fails with one line when offline."""
