@@ -87,7 +87,7 @@ def test_saved_config_reloads_exactly(tmp_path) -> None:
         (["--preset=paper", "--backbone.image_size=64"], "only applies to the tiny backbone"),
         (["--stage2_start_step=-1"], "stage2_start_step must be >= 0"),
         (["--use_planner=false", "--stage=stage2"], "w/o SP"),
-        (["--backbone.image_size=30"], "must be a multiple of"),
+        (["--preset=tiny", "--backbone.image_size=30"], "must be a multiple of"),
     ],
 )
 def test_bad_values_are_rejected_with_the_allowed_values(flags: list[str], message: str) -> None:
@@ -263,7 +263,8 @@ def test_short_run_presets_use_the_short_run_recipe() -> None:
         assert cfg.dtype == "float32"
     laptop = parse("--preset=laptop")
     assert not laptop.backbone.freeze_vision_tower  # a random vision tower has to learn
-    assert laptop.backbone.image_size > parse().backbone.image_size
+    assert laptop.backbone.image_size > parse("--preset=tiny").backbone.image_size
+    assert parse() == laptop  # the default: the smallest preset that learns from its cameras
     assert parse("--preset=laptop", "--optimizer_lr_heads=5e-4").optimizer_lr_heads == 5e-4  # flags win
 
 
