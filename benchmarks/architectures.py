@@ -104,6 +104,7 @@ def make_config(preset: str, **overrides: object) -> SubgoalVLAConfig:
     actions = {ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,))}
     # a tiny backbone's vocabulary comes from the training data; here CALVIN's, as lerobot-train would fill it
     backbone = BackboneConfig(vocabulary=list(vocabulary_words(ALL_INSTRUCTIONS)) if preset in TINY else None)
+    overrides.setdefault("device", "cpu")  # the config's device only; the model is built where asked
     return SubgoalVLAConfig(
         preset=preset, input_features=features, output_features=actions, backbone=backbone, **overrides
     )
