@@ -82,6 +82,9 @@ def main() -> None:
     parser.add_argument("--commit", required=True, help="the git commit the run's code was at")
     for stage in ("data", "train", "eval"):
         parser.add_argument(f"--{stage}-command", required=True, help=f"the exact {stage} command")
+    parser.add_argument(
+        "--note", default=None, help="what a reader must know about the run (its provenance note)"
+    )
     args = parser.parse_args()
     if not (args.dataset / "meta" / "info.json").is_file():
         raise SystemExit(
@@ -96,6 +99,7 @@ def main() -> None:
         "data_command": args.data_command,
         "train_command": args.train_command,
         "eval_command": args.eval_command,
+        **({"provenance": args.note} if args.note else {}),
     }
     records = records_from_run(args.run_dir, args.dataset, provenance)
     store_records(records)  # replaces the records of the same run (e.g. one evaluated again)
