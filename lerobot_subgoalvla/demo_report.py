@@ -143,9 +143,8 @@ def plot_losses(records: Sequence[dict[str, float]], path: Path) -> None:
     ax = fig.subplots()
     steps = [r["step"] for r in records]
     keys = [k for k in ("planner_loss", "generator_loss") if any(k in r for r in records)] or ["loss"]
-    for key, colour in zip(keys, ("tab:purple", "tab:orange"), strict=False):
-        if any(key in r for r in records):
-            ax.plot(steps, [r.get(key, math.nan) for r in records], label=key.replace("_", " "), color=colour)
+    for key, colour in zip(keys, ("tab:purple", "tab:orange"), strict=False):  # keys: present ones only
+        ax.plot(steps, [r.get(key, math.nan) for r in records], label=key.replace("_", " "), color=colour)
     stage2 = [r["step"] for r in records if r.get("stage") == 2]
     if stage2:
         ax.axvspan(min(stage2), max(stage2), color="grey", alpha=0.15, label="stage II")
