@@ -6,6 +6,7 @@ resumable_train() {
     local out="$1" log="$2"
     shift 2
     local ckpt="$out/checkpoints/last/pretrained_model"
+    mkdir -p "$(dirname "$log")"  # the log is written before lerobot-train creates any folder
     if [ -f "$ckpt/train_config.json" ] && [ ! -f "$out/.done" ]; then
         lerobot-train --config_path="$ckpt/train_config.json" --resume=true 2>&1 | tee -a "$log"
     elif [ ! -f "$out/.done" ]; then
