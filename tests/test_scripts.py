@@ -44,7 +44,10 @@ def run_stage(env, out: Path, log: Path, *flags: str) -> subprocess.CompletedPro
     script = f'set -euo pipefail; source "{REPO}/scripts/train_stage.sh"; resumable_train "$@"'
     return subprocess.run(
         ["bash", "-c", script, "stage", str(out), str(log), *flags],
-        env=env, capture_output=True, text=True, timeout=60,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
 
 
