@@ -8,8 +8,17 @@ done (at most ``max_steps_per_task`` steps), and let the oracle (``TaskOracle.is
 dicts at the task's first and last frame) decide whether the task really fired; only then does the span
 become a language window, labelled with one of CALVIN's training annotations of that task
 (``calvin_vocab.TRAINING_ANNOTATIONS``). Failed attempts stay in the segment as unlabelled play; when no task
-is feasible afterwards (e.g. a missed grasp left the gripper closed), a short recorded release-and-lift motion
-is played before the segment gives up.
+is feasible afterwards (e.g. a missed grasp, or a fixture script that pushed with closed fingers), a short
+recorded release-and-lift motion is played before the next task is drawn.
+
+Where a window starts (``windows_from_completion``): by default at the frame the expert starts the task,
+i.e. after the previous task's whole script (its release and retreat after the oracle fired) and any
+release-and-lift motion. A CALVIN chain hands over to the next subtask at the *first* step its oracle fires
+(spec 4.3), with the fingers still closed at the fixture, so such start states never begin a default window
+(issue 25; docs/data.md). With ``windows_from_completion`` a window that follows a confirmed task starts at
+the frame where that task's oracle first fired: the previous task's tail becomes the start of the next task's
+demonstration, as a chain would hand it over. After a failed attempt (a chain would have ended) the window
+starts where the expert starts the task, as by default.
 
 Per frame t (spec 1.6): ``robot_obs[t]``, ``scene_obs[t]``, the camera images of state t, ``actions[t]`` =
 [TCP position and euler of state t+1, the gripper command of step t] and ``rel_actions[t]`` derived from
@@ -122,6 +131,7 @@ def record_segment(
     max_steps_per_task: int = 360,
     tasks: tuple[str, ...] = TASK_NAMES,
     first_task: str | None = None,
+    windows_from_completion: bool = False,
 ) -> PlaySegment:
     """Play ``num_tasks`` feasible tasks in a row from a random start state and record every frame.
 
@@ -133,6 +143,8 @@ def record_segment(
         tasks: candidate task names.
         first_task: the segment's first task (its start state is drawn so that it is feasible); None: a
             random one of ``tasks``.
+        windows_from_completion: start a window that follows a confirmed task at the frame where that task's
+            oracle first fired (module docstring); False: where the expert starts the task.
     """
     from lerobot_subgoalvla.envs.calvin.expert.scripted_expert import ScriptedExpert, is_feasible
     from lerobot_subgoalvla.envs.calvin.expert.start_states import sample_start_state
@@ -144,22 +156,33 @@ def record_segment(
     recorder = _Recorder(sim)
     windows, attempted, completed = [], [], []
     task: str | None = first_task
+    handover: int | None = None  # first frame at which the previous confirmed task's oracle held
     for _ in range(num_tasks):
         if task is None:
             logger.info("no feasible task left after %d tasks; ending the segment", len(attempted))
             break
         start_frame, start_info = recorder.frame, sim.get_info()
+        fired: int | None = None
         expert = ScriptedExpert(sim, task, rng)
         while not expert.done and expert.steps < max_steps_per_task:
             action = expert.act()
             if expert.done:  # the script ended on this call: the action is a no-op hold, not recorded
                 break
             recorder.step(action)
+            # Checked only when asked for: the default data stays exactly what it was (and as fast).
+            tracking = windows_from_completion and fired is None
+            if tracking and oracle.is_completed(task, start_info, sim.get_info()):
+                fired = recorder.frame
         attempted.append(task)
+        window_start = start_frame if handover is None else handover
+        handover = None
         if recorder.frame > start_frame and oracle.is_completed(task, start_info, sim.get_info()):
             completed.append(task)
             annotation = str(rng.choice(TRAINING_ANNOTATIONS[task]))
-            windows.append((start_frame, recorder.frame, annotation, task))  # end may be the unsaved state
+            windows.append((window_start, recorder.frame, annotation, task))  # end may be the unsaved state
+            if windows_from_completion:
+                # A task confirmed only at the script's end (it fired on no step before) hands over there.
+                handover = recorder.frame if fired is None else fired
         feasible = [name for name in tasks if is_feasible(name, sim)]
         if not feasible:  # e.g. a missed grasp left the gripper closed on nothing: open it and back off
             for _ in range(RECOVERY_STEPS):

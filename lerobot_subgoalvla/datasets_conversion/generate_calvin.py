@@ -81,6 +81,10 @@ class GeneratorOptions:
     #: task opens as many segments: with uniform choices among the *feasible* tasks, tasks feasible in few
     #: states (most block tasks) get a fraction of the demonstrations the fixtures get.
     balanced_starts: bool = False
+    #: Start a window that follows a confirmed task where that task's oracle first fired, the state a CALVIN
+    #: chain hands to its next subtask (fingers still at the fixture), not after the expert's retreat
+    #: (``calvin_play`` module docstring; issue 25: without it no window starts in those states).
+    windows_from_completion: bool = False
 
     def __post_init__(self) -> None:
         if self.renderer not in RENDERERS:
@@ -162,7 +166,13 @@ def generate_segment(job: SegmentJob) -> int:
                 f"scene {opts.scene}: simulation slot order {slot_order} differs from calvin_quirks"
             )
         segment = record_segment(
-            sim, job.num_tasks, rng, opts.max_steps_per_task, opts.tasks, opts.first_task(job.index)
+            sim,
+            job.num_tasks,
+            rng,
+            opts.max_steps_per_task,
+            opts.tasks,
+            opts.first_task(job.index),
+            windows_from_completion=opts.windows_from_completion,
         )
     finally:
         sim.close()
@@ -345,6 +355,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         action="store_true",
         help="segments start with each task in turn, not a random one (more demonstrations of rarely "
         "feasible tasks such as most block tasks)",
+    )
+    parser.add_argument(
+        "--windows-from-completion",
+        action="store_true",
+        help="a task's language window starts where the previous task's oracle first fired (the state a "
+        "CALVIN chain hands to its next subtask), not where the expert starts it",
     )
     return parser.parse_args(argv)
 
