@@ -48,8 +48,10 @@ TRAIN_TASKS="${DEMO_TRAIN_TASKS:-$TRAIN_TASKS}" # fixtures: the 8 fixture tasks;
 case "$TRAIN_TASKS" in
     fixtures) TASK_FLAGS=(--tasks "$(IFS=,; echo "${FIXTURE_TASKS[*]}")"); EVAL_TASKS=("${FIXTURE_TASKS[@]}") ;;
     # All 34: segments open with each task in turn (--balanced-starts): drawn among the feasible tasks, the
-    # block tasks got a median of 8 demonstrations to the fixtures' 33 in the first 34-task run.
-    all) TASK_FLAGS=(--balanced-starts)
+    # block tasks got a median of 8 demonstrations to the fixtures' 33 in the first 34-task run. Windows after
+    # a done task start where its oracle fired (--windows-from-completion), the state a chain hands over: by
+    # default none does (fingers closed at the fixture in 100 % of hand-overs, 0 % of window starts; docs/data.md).
+    all) TASK_FLAGS=(--balanced-starts --windows-from-completion)
          read -r -a EVAL_TASKS <<< "$(python -c 'from lerobot_subgoalvla.calvin_vocab import TASK_NAMES; print(*TASK_NAMES)')" ;;
     *) echo "demo.sh: DEMO_TRAIN_TASKS=${TRAIN_TASKS} is not valid; use fixtures or all" >&2; exit 2 ;;
 esac
