@@ -7,9 +7,11 @@
 #   4. lerobot-eval --env.type=metaworld --env.task=<task> for every task, LeRobot's env unchanged
 #   5. the report: success per task with its interval, loss curves, links to the rollout videos
 # Defaults: the 10 MT10 tasks, 15 expert episodes each, 2000 steps x 32, 10 evaluation episodes per task on
-# seed 1000 on (data seeds derive from --seed 0). Time on 2 idle CPU cores: generation ~25 min (rendering 480 px
-# is 92 % of it, ~4 steps/s per worker), training ~40 min (multi_task_dit ~2x), evaluation 3-10 min per task (an
-# unsolved episode runs LeRobot's 500-step limit). Expected result: docs/RESULTS.md, "Meta-World MT10".
+# seed 1000 on (data seeds derive from --seed 0). Time on 2 CPU cores (measured with other jobs running):
+# generation ~55 min (rendering 480 px is 94 % of it), training ~45 min (multi_task_dit ~2x), evaluation ~170 min
+# (4-30 min per task: an unsolved episode runs LeRobot's 500-step limit); about 5 h in all. Expected result
+# (docs/RESULTS.md, "Meta-World MT10"): SubgoalVLA about 41 % over MT10, drawers and window-close solved,
+# grasping tasks not.
 # MW_POLICY / MW_TASKS / MW_EPISODES / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the run. Two
 # policies may share MW_DIR (the data stages are shared; start the second once the first has its data).
 # Every stage resumes or is skipped when its output is there, so an interrupted run continues.
