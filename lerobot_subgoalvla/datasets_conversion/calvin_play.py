@@ -170,8 +170,11 @@ def record_segment(
                 break
             recorder.step(action)
             # Checked only when asked for: the default data stays exactly what it was (and as fast).
-            tracking = windows_from_completion and fired is None
-            if tracking and oracle.is_completed(task, start_info, sim.get_info()):
+            if (
+                windows_from_completion
+                and fired is None
+                and oracle.is_completed(task, start_info, sim.get_info())
+            ):
                 fired = recorder.frame
         attempted.append(task)
         window_start = start_frame if handover is None else handover
