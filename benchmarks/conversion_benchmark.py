@@ -43,6 +43,7 @@ from lerobot_subgoalvla.datasets_conversion.calvin_format import (
 )
 from lerobot_subgoalvla.datasets_conversion.convert_calvin import convert
 from lerobot_subgoalvla.datasets_conversion.lerobot_parts import ConversionOptions
+from lerobot_subgoalvla.datasets_conversion.video_frames import encoder_options
 
 logger = logging.getLogger("conversion_benchmark")
 ABC_D_LANG_FRAMES = 1_070_000
@@ -134,8 +135,8 @@ def writer_alone(src: Path, out_dir: Path) -> float:
         features,
         root=out_dir,
         use_videos=True,
-        streaming_encoding=True,
         video_backend="pyav",
+        **encoder_options(True, max(len(episode[STATIC]) for episode in arrays)),
     )
     for episode in arrays:
         for frame in iter_frames(episode):

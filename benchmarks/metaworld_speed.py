@@ -32,6 +32,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812 - the usual alias
 
 from lerobot_subgoalvla.contract.keys import SINGLE_IMAGE_KEY as IMAGE_KEY
+from lerobot_subgoalvla.datasets_conversion.video_frames import encoder_options
 from lerobot_subgoalvla.metaworld.generate import FPS, ROBOT_TYPE, features
 from lerobot_subgoalvla.metaworld.record import Episode, MetaworldRecorder
 from lerobot_subgoalvla.metaworld.tasks import task_description
@@ -49,13 +50,13 @@ def record_and_write(task: str, size: int, seeds: list[int], image_format: str, 
     """Record one episode per seed; write the successful ones; ``Episode.seconds["write"]`` filled in."""
     from lerobot.datasets import LeRobotDataset
 
-    dataset = LeRobotDataset.create(
-        repo_id=f"bench/{task}-{size}", fps=FPS, features=features(size, image_format), root=root,
-        robot_type=ROBOT_TYPE, use_videos=image_format == "video", video_backend="pyav",
-        streaming_encoding=image_format == "video",
-    )  # fmt: skip
     episodes = []
     with MetaworldRecorder(task, size) as recorder:
+        dataset = LeRobotDataset.create(
+            repo_id=f"bench/{task}-{size}", fps=FPS, features=features(size, image_format), root=root,
+            robot_type=ROBOT_TYPE, use_videos=image_format == "video", video_backend="pyav",
+            **encoder_options(image_format == "video", recorder.max_episode_steps + 1),
+        )  # fmt: skip
         for seed in seeds:
             episode = recorder.record(seed)
             start = time.perf_counter()

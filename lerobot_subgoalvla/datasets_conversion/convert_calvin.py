@@ -55,6 +55,7 @@ from lerobot_subgoalvla.datasets_conversion.output_paths import (
     check_source_folder,
     refuse_overlap,
 )
+from lerobot_subgoalvla.datasets_conversion.video_frames import check_video_frames
 
 if TYPE_CHECKING:
     from lerobot.datasets import LeRobotDataset
@@ -138,6 +139,7 @@ def _finish(
 
     merged = partial / "dataset"
     merge_parts([job.final_dir for job in jobs], repo_id, merged)
+    check_video_frames(merged)  # the merge concatenates the parts' videos
     info_path = merged / "meta" / "info.json"
     info = json.loads(info_path.read_text())
     info["features"] = options.trace_metadata(record["split"]).attach(info["features"])

@@ -54,6 +54,7 @@ from lerobot_subgoalvla.datasets_conversion.calvin_quirks import (
     block_order_of,
     canonicalize_scene_obs,
 )
+from lerobot_subgoalvla.datasets_conversion.video_frames import check_video_frames, encoder_options
 
 
 @dataclass(frozen=True)
@@ -215,6 +216,8 @@ def write_part(job: PartJob) -> int:
     tmp_dir = job.final_dir.with_suffix(".tmp")
     shutil.rmtree(tmp_dir, ignore_errors=True)
     split = CalvinSplit(job.split_dir)
+    use_videos = job.options.image_format == "video"
+    encoding = encoder_options(use_videos, max(episode.length for episode in job.episodes))
     dataset = LeRobotDataset.create(
         repo_id=f"{job.repo_id}-{job.final_dir.name}",
         fps=CALVIN_FPS,
@@ -222,11 +225,10 @@ def write_part(job: PartJob) -> int:
         root=tmp_dir,
         robot_type=calvin.ROBOT_TYPE,
         video_backend="pyav",  # decoding backend; avoids probing torchcodec, which needs system FFmpeg
-        use_videos=job.options.image_format == "video",
-        streaming_encoding=job.options.image_format == "video",
-        image_writer_threads=4
-        if job.options.image_format == "image"
-        else 0,  # PNG writing off the main thread
+        use_videos=use_videos,
+        # Frames that are not streamed to the encoder are written as PNG files, off the main thread.
+        image_writer_threads=0 if encoding["streaming_encoding"] else 4,
+        **encoding,
     )
     frames = 0
     embed = _embed_images_if_any(writer_module.embed_images)
@@ -245,6 +247,7 @@ def write_part(job: PartJob) -> int:
             dataset.save_episode()
             frames += episode.length
     dataset.finalize()
+    check_video_frames(tmp_dir)  # a part with a dropped frame is never renamed into place
     tmp_dir.rename(job.final_dir)
     return frames
 

@@ -58,6 +58,7 @@ from tqdm import tqdm
 
 from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, require_at_least, user_errors
 from lerobot_subgoalvla.contract.keys import ACTION_KEY, ENV_STATE_KEY, SINGLE_IMAGE_KEY, STATE_KEY
+from lerobot_subgoalvla.datasets_conversion.video_frames import check_video_frames, encoder_options
 from lerobot_subgoalvla.metaworld.tasks import parse_tasks, require_metaworld, task_description, task_id
 
 logger = logging.getLogger(__name__)
@@ -154,27 +155,14 @@ def plan_parts(opts: GenerateOptions, parts_dir: Path, repo_id: str) -> list[Par
 
 def record_part(job: PartJob) -> dict:
     """Record one part (in a worker process) into ``DIR.tmp``, rename it to ``DIR``; returns its summary."""
-    from lerobot.datasets import LeRobotDataset
-
     from lerobot_subgoalvla.metaworld.record import MetaworldRecorder
 
     opts, tmp = job.options, job.directory.with_suffix(".tmp")
     shutil.rmtree(tmp, ignore_errors=True)
-    video = opts.image_format == "video"
-    dataset = LeRobotDataset.create(
-        repo_id=f"{job.repo_id}-{job.directory.name}",
-        fps=FPS,
-        features=features(opts.image_size, opts.image_format),
-        root=tmp,
-        robot_type=ROBOT_TYPE,
-        use_videos=video,
-        video_backend="pyav",  # decoding backend; avoids probing torchcodec, which needs system FFmpeg
-        streaming_encoding=video,  # encode while recording instead of a pass at save_episode
-        image_writer_threads=0 if video else 2,  # PNG writing off the main thread
-    )
     summary = {"task": job.task, "part": job.index, "tries": 0, "lengths": [], "seconds": {}}
     description, max_tries = task_description(job.task), job.episodes * opts.max_tries_factor
     with MetaworldRecorder(job.task, opts.image_size) as recorder:
+        dataset = _create_part_dataset(job, tmp, recorder.max_episode_steps)
         while len(summary["lengths"]) < job.episodes:
             if summary["tries"] >= max_tries:
                 raise RuntimeError(
@@ -192,10 +180,32 @@ def record_part(job: PartJob) -> dict:
                 summary["lengths"].append(episode.length)
     start = time.perf_counter()
     dataset.finalize()
+    check_video_frames(tmp)  # a part with a dropped frame is never renamed into place
     _add_seconds(summary["seconds"], {"write": time.perf_counter() - start})
     (tmp / SUMMARY_FILE).write_text(json.dumps(summary))
     tmp.rename(job.directory)
     return summary
+
+
+def _create_part_dataset(job: PartJob, root: Path, max_episode_steps: int) -> object:
+    """The part's empty LeRobotDataset; videos are encoded while recording (no pass at ``save_episode``),
+    with room in the encoder's queue for a whole episode, so no frame is ever dropped (``video_frames``)."""
+    from lerobot.datasets import LeRobotDataset
+
+    opts = job.options
+    video = opts.image_format == "video"
+    encoding = encoder_options(video, max_episode_steps + 1)  # + 1: the frame of the final state
+    return LeRobotDataset.create(
+        repo_id=f"{job.repo_id}-{job.directory.name}",
+        fps=FPS,
+        features=features(opts.image_size, opts.image_format),
+        root=root,
+        robot_type=ROBOT_TYPE,
+        use_videos=video,
+        video_backend="pyav",  # decoding backend; avoids probing torchcodec, which needs system FFmpeg
+        image_writer_threads=0 if encoding["streaming_encoding"] else 2,  # PNG writing off the main thread
+        **encoding,
+    )
 
 
 def _write_episode(dataset: object, frames: dict[str, np.ndarray], description: str) -> None:
