@@ -1,5 +1,6 @@
-"""The end-to-end commands' shared training stage (scripts/train_stage.sh), run by bash with a stand-in for
-lerobot-train on PATH: what it is called with, where its log goes, and how a stage resumes or is skipped."""
+"""The end-to-end commands' shared stages, run by bash with stand-ins for lerobot-train/-eval on PATH:
+the training stage (scripts/train_stage.sh: what it is called with, where its log goes, how it resumes or is
+skipped) and the sharded chain stage (scripts/chain_stage.sh: disjoint shards, joined, resumed per shard)."""
 
 import os
 import shutil
@@ -90,3 +91,76 @@ def test_a_failed_training_run_fails_the_stage_and_is_not_marked_done(fake_env, 
     result = run_stage({**env, "FAKE_FAIL": "1"}, out, log, "--steps=10")
     assert result.returncode != 0
     assert not (out / ".done").exists()
+
+
+# lerobot-eval for CALVIN's chains: appends {"chain_id": i} for each chain of [chain_start, chain_stop) not
+# yet in --env.results_path (as --env.resume does); FAKE_STOP_AFTER=n stops with exit 1 after n new chains.
+FAKE_EVAL = """#!/usr/bin/env bash
+printf '%s\\n' "$@" > "$FAKE_CALLS/call_$(date +%s%N)"
+for arg in "$@"; do
+    case "$arg" in
+        --env.chain_start=*) lo="${arg#*=}" ;; --env.chain_stop=*) hi="${arg#*=}" ;;
+        --env.results_path=*) results="${arg#*=}" ;;
+    esac
+done
+written=0
+for ((i = lo; i < hi; i++)); do
+    grep -qx "{\\"chain_id\\": $i}" "$results" 2>/dev/null && continue
+    [ -n "${FAKE_STOP_AFTER:-}" ] && [ "$written" -ge "$FAKE_STOP_AFTER" ] && exit 1
+    echo "{\\"chain_id\\": $i}" >> "$results"
+    written=$((written + 1))
+done
+"""
+
+
+@pytest.fixture
+def fake_eval(tmp_path):
+    bin_dir, calls = tmp_path / "bin", tmp_path / "calls"
+    bin_dir.mkdir()
+    calls.mkdir()
+    fake = bin_dir / "lerobot-eval"
+    fake.write_text(FAKE_EVAL)
+    fake.chmod(0o755)
+    env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "FAKE_CALLS": str(calls)}
+    return env, calls
+
+
+def run_chains(env, eval_dir: Path, first: int, count: int, shards: int) -> subprocess.CompletedProcess:
+    script = f'set -euo pipefail; source "{REPO}/scripts/chain_stage.sh"; sharded_chains "$@"'
+    args = ["ckpt", str(eval_dir), str(first), str(count), str(shards)]
+    return subprocess.run(
+        ["bash", "-c", script, "stage", *args], env=env, capture_output=True, text=True, timeout=60
+    )
+
+
+def chain_ids(path: Path) -> list[int]:
+    return [int(line.split(":")[1].strip(" }")) for line in path.read_text().splitlines()]
+
+
+def chain_ranges(calls: Path) -> list[tuple[str, str]]:
+    ranges = []
+    for call in sorted(calls.iterdir()):
+        flags = dict(arg.split("=", 1) for arg in call.read_text().split() if "=" in arg)
+        ranges.append((flags["--env.chain_start"], flags["--env.chain_stop"]))
+    return sorted(ranges)
+
+
+def test_chains_are_split_into_disjoint_shards_and_joined(fake_eval, tmp_path):
+    env, calls = fake_eval
+    result = run_chains(env, tmp_path / "eval", 100, 100, 2)
+    assert result.returncode == 0, result.stderr
+    assert chain_ranges(calls) == [("100", "150"), ("150", "200")]
+    assert sorted(chain_ids(tmp_path / "eval" / "lh_mtlc" / "results.jsonl")) == list(range(100, 200))
+    assert run_chains(env, tmp_path / "eval", 100, 100, 2).returncode == 0  # finished: skipped
+    assert len(list(calls.iterdir())) == 2
+
+
+def test_a_stopped_chain_stage_fails_then_resumes_each_shard_where_it_stopped(fake_eval, tmp_path):
+    env, calls = fake_eval
+    stopped = run_chains({**env, "FAKE_STOP_AFTER": "7"}, tmp_path / "eval", 0, 30, 3)
+    assert stopped.returncode != 0
+    assert not (tmp_path / "eval" / "lh_mtlc" / "results.jsonl").exists()
+    assert run_chains(env, tmp_path / "eval", 0, 30, 3).returncode == 0
+    assert sorted(chain_ids(tmp_path / "eval" / "lh_mtlc" / "results.jsonl")) == list(range(30))
+    logs = sorted(p.name for p in (tmp_path / "eval").glob("lh_mtlc_shard*.log"))
+    assert logs == [f"lh_mtlc_shard{k}_from_{n}.log" for k in range(3) for n in (0, 7)]
