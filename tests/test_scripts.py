@@ -29,16 +29,20 @@ fi
 pytestmark = pytest.mark.skipif(shutil.which("bash") is None, reason="bash is not installed")
 
 
-@pytest.fixture
-def fake_env(tmp_path):
+def stand_in(tmp_path: Path, name: str, script: str) -> tuple[dict, Path]:
+    """``name`` on PATH as ``script``; returns the environment to run with and the folder of its calls."""
     bin_dir, calls = tmp_path / "bin", tmp_path / "calls"
     bin_dir.mkdir()
     calls.mkdir()
-    fake = bin_dir / "lerobot-train"
-    fake.write_text(FAKE_TRAIN)
+    fake = bin_dir / name
+    fake.write_text(script)
     fake.chmod(0o755)
-    env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "FAKE_CALLS": str(calls)}
-    return env, calls
+    return {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "FAKE_CALLS": str(calls)}, calls
+
+
+@pytest.fixture
+def fake_env(tmp_path):
+    return stand_in(tmp_path, "lerobot-train", FAKE_TRAIN)
 
 
 def run_stage(env, out: Path, log: Path, *flags: str) -> subprocess.CompletedProcess:
@@ -115,14 +119,7 @@ done
 
 @pytest.fixture
 def fake_eval(tmp_path):
-    bin_dir, calls = tmp_path / "bin", tmp_path / "calls"
-    bin_dir.mkdir()
-    calls.mkdir()
-    fake = bin_dir / "lerobot-eval"
-    fake.write_text(FAKE_EVAL)
-    fake.chmod(0o755)
-    env = {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "FAKE_CALLS": str(calls)}
-    return env, calls
+    return stand_in(tmp_path, "lerobot-eval", FAKE_EVAL)
 
 
 def run_chains(env, eval_dir: Path, first: int, count: int, shards: int) -> subprocess.CompletedProcess:
