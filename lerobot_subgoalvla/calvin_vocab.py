@@ -61,6 +61,13 @@ TASK_NAMES: tuple[str, ...] = (
     "push_into_drawer",
 )  # fmt: skip
 
+#: The 8 tasks that move the desk's fixtures (drawer, sliding door, LED button, light-bulb switch): feasible
+#: from almost every state, unlike most block tasks.
+FIXTURE_TASKS: tuple[str, ...] = (
+    "open_drawer", "close_drawer", "move_slider_left", "move_slider_right",
+    "turn_on_led", "turn_off_led", "turn_on_lightbulb", "turn_off_lightbulb",
+)  # fmt: skip
+
 
 def _evaluation_instructions() -> dict[str, str]:
     instructions: dict[str, str] = {}

@@ -27,8 +27,7 @@ source scripts/chain_stage.sh
 # slower updates when anything else runs).
 export MPLBACKEND=Agg OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
 
-FIXTURE_TASKS=(open_drawer close_drawer move_slider_left move_slider_right turn_on_led turn_off_led
-    turn_on_lightbulb turn_off_lightbulb)
+read -r -a FIXTURE_TASKS <<< "$(python -c 'from lerobot_subgoalvla.calvin_vocab import FIXTURE_TASKS; print(*FIXTURE_TASKS)')"
 case "${DEMO_PROFILE:-cpu}" in
     # cpu: nothing is downloaded (random backbone); gpu: the small preset fetches its pretrained VLM once
     cpu) PRESET=laptop; TASKS=240; STEPS=2500; BATCH=32; EPISODES=10; CHAINS=20; CHAIN_START=0; DEVICE=cpu

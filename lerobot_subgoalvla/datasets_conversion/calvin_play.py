@@ -35,6 +35,7 @@ Dimension legend:
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -124,6 +125,19 @@ class _Recorder:
         }
 
 
+def draw_next_task(feasible: list[str], rng: np.random.Generator, weights: Mapping[str, float] | None) -> str:
+    """One of the ``feasible`` tasks, with chances proportional to ``weights`` (missing tasks: 1).
+
+    Why weights: drawn uniformly among the feasible tasks, the fixture tasks (feasible from almost any state)
+    take most of a segment's later attempts, so most block tasks get a fraction of their demonstrations.
+    None draws exactly as before (``rng.choice`` without probabilities), so default data does not change.
+    """
+    if weights is None:
+        return str(rng.choice(feasible))
+    chances = np.array([weights.get(task, 1.0) for task in feasible], dtype=np.float64)
+    return str(rng.choice(feasible, p=chances / chances.sum()))
+
+
 def record_segment(
     sim,
     num_tasks: int,
@@ -132,6 +146,7 @@ def record_segment(
     tasks: tuple[str, ...] = TASK_NAMES,
     first_task: str | None = None,
     windows_from_completion: bool = False,
+    task_weights: Mapping[str, float] | None = None,
 ) -> PlaySegment:
     """Play ``num_tasks`` feasible tasks in a row from a random start state and record every frame.
 
@@ -145,6 +160,8 @@ def record_segment(
             random one of ``tasks``.
         windows_from_completion: start a window that follows a confirmed task at the frame where that task's
             oracle first fired (module docstring); False: where the expert starts the task.
+        task_weights: relative chance of each task when the next one is drawn among the feasible ones
+            (``draw_next_task``); None: uniform.
     """
     from lerobot_subgoalvla.envs.calvin.expert.scripted_expert import ScriptedExpert, is_feasible
     from lerobot_subgoalvla.envs.calvin.expert.start_states import sample_start_state
@@ -191,7 +208,7 @@ def record_segment(
             for _ in range(RECOVERY_STEPS):
                 recorder.step(RECOVERY_ACTION)
             feasible = [name for name in tasks if is_feasible(name, sim)]
-        task = str(rng.choice(feasible)) if feasible else None
+        task = draw_next_task(feasible, rng, task_weights) if feasible else None
     frames = recorder.arrays()
     last = len(recorder.commands) - 1
     windows = [(s, min(e, last), a, t) for s, e, a, t in windows if s <= last]  # clamp to saved frames

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from lerobot_subgoalvla.calvin_vocab import TASK_NAMES, check_task_name
+from lerobot_subgoalvla.calvin_vocab import FIXTURE_TASKS, TASK_NAMES, check_task_name
 from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, require_at_least, user_errors
 from lerobot_subgoalvla.datasets_conversion.calvin_format import (
     SPLITS,
@@ -85,6 +85,10 @@ class GeneratorOptions:
     #: chain hands to its next subtask (fingers still at the fixture), not after the expert's retreat
     #: (``calvin_play`` module docstring; issue 25: without it no window starts in those states).
     windows_from_completion: bool = False
+    #: Chance of a fixture task (``calvin_vocab.FIXTURE_TASKS``) relative to any other task when a segment's
+    #: next task is drawn among the feasible ones; 1: uniform (the default data). Below 1 the block tasks,
+    #: feasible in fewer states, get more of the segments' later attempts.
+    fixture_weight: float = 1.0
 
     def __post_init__(self) -> None:
         if self.renderer not in RENDERERS:
@@ -98,6 +102,8 @@ class GeneratorOptions:
                     "--gripper-size": self.gripper_size}  # fmt: skip
         require_at_least(1, positive)
         require_at_least(0, {"--seed": self.seed})  # numpy's SeedSequence takes non-negative entropy only
+        if not self.fixture_weight > 0:
+            raise ValueError(f"--fixture-weight must be > 0 (1: uniform), got {self.fixture_weight}")
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"--val-fraction must be in [0, 1), got {self.val_fraction}")
         if self.val_fraction > 0 and len(self.segment_tasks()) < 2:
@@ -118,6 +124,12 @@ class GeneratorOptions:
         """Task count of each segment (the last one takes the remainder)."""
         full, rest = divmod(self.num_tasks, self.tasks_per_segment)
         return [self.tasks_per_segment] * full + ([rest] if rest else [])
+
+    def task_weights(self) -> dict[str, float] | None:
+        """Relative chances of the next task among the feasible ones (``calvin_play.draw_next_task``)."""
+        if self.fixture_weight == 1.0:
+            return None  # uniform, drawn exactly as before the option existed
+        return dict.fromkeys(FIXTURE_TASKS, self.fixture_weight)
 
     def first_task(self, segment: int) -> str | None:
         """The task segment ``segment`` starts with under ``balanced_starts``; None: a random one."""
@@ -173,6 +185,7 @@ def generate_segment(job: SegmentJob) -> int:
             opts.tasks,
             opts.first_task(job.index),
             windows_from_completion=opts.windows_from_completion,
+            task_weights=opts.task_weights(),
         )
     finally:
         sim.close()
@@ -355,6 +368,14 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         action="store_true",
         help="segments start with each task in turn, not a random one (more demonstrations of rarely "
         "feasible tasks such as most block tasks)",
+    )
+    parser.add_argument(
+        "--fixture-weight",
+        type=float,
+        default=1.0,
+        help="chance of a fixture task (drawer, slider, LED, light bulb) relative to a block task when the "
+        "next task is drawn among the feasible ones; below 1 gives block tasks more demonstrations "
+        "(default 1: uniform)",
     )
     parser.add_argument(
         "--windows-from-completion",

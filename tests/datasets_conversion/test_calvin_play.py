@@ -126,3 +126,31 @@ def test_the_generator_flag_reaches_the_recorded_options() -> None:
     args.pop("output"), args.pop("workers")
     assert GeneratorOptions(**args).windows_from_completion
     assert not GeneratorOptions(num_tasks=16, seed=0).windows_from_completion  # the default data is unchanged
+
+
+def test_next_task_weights_shift_the_draw_towards_the_rarer_tasks() -> None:
+    from lerobot_subgoalvla.calvin_vocab import FIXTURE_TASKS
+
+    feasible = [*FIXTURE_TASKS, "stack_block", "lift_red_block_table"]
+    weights = dict.fromkeys(FIXTURE_TASKS, 0.2)
+    rng = np.random.default_rng(0)
+    draws = [calvin_play.draw_next_task(feasible, rng, weights) for _ in range(4000)]
+    block_share = np.mean([task not in FIXTURE_TASKS for task in draws])
+    assert block_share == pytest.approx(2 / (2 + 8 * 0.2), abs=0.03)  # 56 %, uniform would give 20 %
+    # without weights the draw is rng.choice's own, so data generated before the option stays the same
+    a, b = np.random.default_rng(1), np.random.default_rng(1)
+    assert [calvin_play.draw_next_task(feasible, a, None) for _ in range(50)] == [
+        str(b.choice(feasible)) for _ in range(50)
+    ]
+
+
+def test_the_fixture_weight_reaches_the_draw_and_is_validated() -> None:
+    from lerobot_subgoalvla.calvin_vocab import FIXTURE_TASKS
+    from lerobot_subgoalvla.datasets_conversion.generate_calvin import GeneratorOptions, parse_args
+
+    args = vars(parse_args(["--output", "x", "--num-tasks", "16", "--seed", "0", "--fixture-weight", "0.25"]))
+    args.pop("output"), args.pop("workers")
+    assert GeneratorOptions(**args).task_weights() == dict.fromkeys(FIXTURE_TASKS, 0.25)
+    assert GeneratorOptions(num_tasks=16, seed=0).task_weights() is None
+    with pytest.raises(ValueError, match=r"--fixture-weight must be > 0"):
+        GeneratorOptions(num_tasks=16, seed=0, fixture_weight=0.0)
