@@ -18,6 +18,8 @@
 # a GPU box (small preset, 10x data and steps over all 34 tasks, 100 chains); single sizes can be changed with
 # DEMO_TASKS, DEMO_STEPS, DEMO_EPISODES, DEMO_CHAINS, DEMO_CHAIN_START, DEMO_CHAIN_SHARDS (keep it when
 # resuming), DEMO_WORKERS, DEMO_DIR, and the trained tasks with DEMO_TRAIN_TASKS=fixtures|all.
+# DEMO_CHECKPOINT=<pretrained_model folder> skips stages 1-3 and evaluates that policy (a kept study run resumes
+# its evaluation this way: benchmarks/study/runs/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup_venv.sh
@@ -66,27 +68,39 @@ mkdir -p "$OUT"
 started=$(date +%s)
 stage() { echo "== [$(( ($(date +%s) - started) / 60 )) min] $*"; }
 
-stage "1/5 generate CALVIN-format play data ($TASKS task attempts, $TRAIN_TASKS tasks) -> $OUT/calvin_native"
-if [ ! -d "$OUT/calvin_native/training" ] || [ ! -d "$OUT/calvin_native/validation" ]; then
-    subgoalvla-generate-calvin --output "$OUT/calvin_native" --num-tasks "$TASKS" --seed 0 \
-        --tasks-per-segment 4 --workers "$WORKERS" "${TASK_FLAGS[@]}"
-fi
+TRAIN_LOG="$OUT/train.log"
+if [ -n "${DEMO_CHECKPOINT:-}" ]; then
+    # Evaluate a trained policy (e.g. a run the study keeps in the repository) instead of training one.
+    CKPT="$DEMO_CHECKPOINT"
+    if [ ! -f "$CKPT/config.json" ]; then
+        echo "demo.sh: DEMO_CHECKPOINT=$CKPT has no config.json; pass a pretrained_model folder" >&2
+        exit 2
+    fi
+    TRAIN_LOG="$(dirname "$CKPT")/train.log"  # its training log, where it was kept beside it
+    stage "1-3/5 skipped: evaluating DEMO_CHECKPOINT=$CKPT"
+else
+    stage "1/5 generate CALVIN-format play data ($TASKS task attempts, $TRAIN_TASKS tasks) -> $OUT/calvin_native"
+    if [ ! -d "$OUT/calvin_native/training" ] || [ ! -d "$OUT/calvin_native/validation" ]; then
+        subgoalvla-generate-calvin --output "$OUT/calvin_native" --num-tasks "$TASKS" --seed 0 \
+            --tasks-per-segment 4 --workers "$WORKERS" "${TASK_FLAGS[@]}"
+    fi
 
-stage "2/5 convert to a LeRobotDataset -> $OUT/dataset"
-if [ ! -d "$OUT/dataset" ]; then
-    resume=()
-    [ -d "$OUT/dataset.partial" ] && resume=(--resume)
-    subgoalvla-convert-calvin "$OUT/calvin_native" --repo-id local/calvin_demo --root "$OUT/dataset" \
-        --workers "$WORKERS" "${resume[@]}"
-fi
+    stage "2/5 convert to a LeRobotDataset -> $OUT/dataset"
+    if [ ! -d "$OUT/dataset" ]; then
+        resume=()
+        [ -d "$OUT/dataset.partial" ] && resume=(--resume)
+        subgoalvla-convert-calvin "$OUT/calvin_native" --repo-id local/calvin_demo --root "$OUT/dataset" \
+            --workers "$WORKERS" "${resume[@]}"
+    fi
 
-stage "3/5 train SubgoalVLA ($PRESET preset, $STEPS steps x batch $BATCH) -> $OUT/train (log: $OUT/train.log)"
-CKPT="$OUT/train/checkpoints/last/pretrained_model"
-resumable_train "$OUT/train" "$OUT/train.log" --policy.type=subgoalvla --policy.preset="$PRESET" \
-    --policy.push_to_hub=false --policy.device="$DEVICE" --policy.stage2_start_step=$((STEPS * 4 / 5)) \
-    --dataset.repo_id=local/calvin_demo --dataset.root="$OUT/dataset" --dataset.video_backend=pyav \
-    --steps="$STEPS" --batch_size="$BATCH" --num_workers=1 --log_freq=50 --save_freq=$((STEPS / 4)) --seed=0 \
-    --wandb.enable=false $(mixed_precision_flag "$PRECISION")
+    stage "3/5 train SubgoalVLA ($PRESET preset, $STEPS steps x batch $BATCH) -> $OUT/train (log: $TRAIN_LOG)"
+    CKPT="$OUT/train/checkpoints/last/pretrained_model"
+    resumable_train "$OUT/train" "$TRAIN_LOG" --policy.type=subgoalvla --policy.preset="$PRESET" \
+        --policy.push_to_hub=false --policy.device="$DEVICE" --policy.stage2_start_step=$((STEPS * 4 / 5)) \
+        --dataset.repo_id=local/calvin_demo --dataset.root="$OUT/dataset" --dataset.video_backend=pyav \
+        --steps="$STEPS" --batch_size="$BATCH" --num_workers=1 --log_freq=50 --save_freq=$((STEPS / 4)) --seed=0 \
+        --wandb.enable=false $(mixed_precision_flag "$PRECISION")
+fi
 
 stage "4/5 evaluate: LH-MTLC chains $CHAIN_START-$((CHAIN_START + CHAINS - 1)), then ${#EVAL_TASKS[@]} tasks x $EPISODES episodes -> $OUT/eval"
 # The chains first (the headline number), in parallel shards, each resumable (scripts/chain_stage.sh).
@@ -108,5 +122,7 @@ mkdir -p "$OUT/report"
 [ -f "$OUT/report/traces.png" ] || subgoalvla-render-traces --policy-path "$CKPT" --task open_drawer --steps 90 \
     --seed 1000 --output "$OUT/report/traces.png"
 subgoalvla-calvin-report "$OUT/eval/lh_mtlc/results.jsonl" --output-dir "$OUT/report/lh_mtlc" > "$OUT/report/lh_mtlc.log" 2>&1
-subgoalvla-demo-report --train-log "$OUT/train.log" --eval-dir "$OUT/eval" --output-dir "$OUT/report"
+log_flag=()
+[ -f "$TRAIN_LOG" ] && log_flag=(--train-log "$TRAIN_LOG")
+subgoalvla-demo-report "${log_flag[@]}" --eval-dir "$OUT/eval" --output-dir "$OUT/report"
 stage "done: report $OUT/report/README.md (success per task, LH-1..5, curves, traces, videos)"
