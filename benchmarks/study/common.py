@@ -31,18 +31,10 @@ from pathlib import Path
 
 from records import RESULTS_PATH, chain_record_fields, code_era, load_records, record_key, store_records
 
+from lerobot_subgoalvla.calvin_vocab import FIXTURE_TASKS  # noqa: F401 - the study's task list, re-exported
+
 logger = logging.getLogger("study")
 
-FIXTURE_TASKS = (
-    "open_drawer",
-    "close_drawer",
-    "move_slider_left",
-    "move_slider_right",
-    "turn_on_led",
-    "turn_off_led",
-    "turn_on_lightbulb",
-    "turn_off_lightbulb",
-)
 #: The setting and task name of a record of CALVIN's long-horizon benchmark (chains of five subtasks).
 LH_MTLC = "lh_mtlc"
 #: Evaluation seeds start here; the generator's data seeds are small integers, so the start states differ.
