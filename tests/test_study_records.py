@@ -250,6 +250,7 @@ def test_a_finished_run_is_recorded_with_its_commit_commands_and_counts(common, 
         assert (record["train_episodes"], record["train_frames"]) == (20, 1679)
         assert (record["train_seconds"], record["samples_per_s"]) == (125, 61)  # tqdm's 02:05, the last line
         assert record["eval_seconds"] == 20.0
+        assert record["eval_seconds_per_episode"] == 2.0  # what the tables' eval s/ep column reads
         assert study_records.missing_provenance(record) == []
 
 

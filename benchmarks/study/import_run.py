@@ -31,6 +31,12 @@ def _eval_seconds(eval_dir: Path, task: str) -> float | None:
     return None if seconds is None else round(float(seconds), 1)
 
 
+def _eval_time_fields(seconds: float | None, episodes: int) -> dict:
+    """``eval_seconds`` and ``eval_seconds_per_episode`` (what the tables show), both None where not written."""
+    per_episode = None if seconds is None else round(seconds / episodes, 2)
+    return {"eval_seconds": seconds, "eval_seconds_per_episode": per_episode}
+
+
 def records_from_run(run_dir: Path, dataset: Path, provenance: dict) -> list[dict]:
     """One record per task evaluated in ``run_dir`` (and one for its chains), each carrying ``provenance``
     (method, setting, scene, commit and the commands)."""
@@ -62,7 +68,7 @@ def records_from_run(run_dir: Path, dataset: Path, provenance: dict) -> list[dic
             "task": task,
             "episodes": result["episodes"],
             "successes": result["successes"],
-            "eval_seconds": _eval_seconds(eval_dir, task),
+            **_eval_time_fields(_eval_seconds(eval_dir, task), result["episodes"]),
         }
         for task, result in read_task_results(eval_dir).items()
     ]
