@@ -29,7 +29,15 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from records import RESULTS_PATH, chain_record_fields, code_era, load_records, record_key, store_records
+from records import (
+    RESULTS_PATH,
+    chain_record_fields,
+    code_era,
+    eval_time_fields,
+    load_records,
+    record_key,
+    store_records,
+)
 
 from lerobot_subgoalvla.calvin_vocab import FIXTURE_TASKS  # noqa: F401 - the study's task list, re-exported
 
@@ -345,8 +353,7 @@ def _evaluate(spec: RunSpec, task: str, checkpoint: Path, out: Path) -> dict:
     return {
         "episodes": len(successes),
         "successes": sum(successes),
-        "eval_seconds_per_episode": round(seconds / len(successes), 2),
-        "eval_seconds": round(seconds, 1),
+        **eval_time_fields(seconds, len(successes)),
         "eval_command": " && ".join(commands),
     }
 
@@ -387,7 +394,6 @@ def _evaluate_chains(spec: RunSpec, checkpoint: Path, out: Path) -> dict:
     seconds = sum(json.loads(info.read_text())["overall"]["eval_s"] for info in infos if info.is_file())
     return {
         **fields,
-        "eval_seconds": round(seconds, 1),
-        "eval_seconds_per_episode": round(seconds / fields["episodes"], 2),
+        **eval_time_fields(seconds, fields["episodes"]),
         "eval_command": shlex.join(command),
     }

@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 
 from common import LH_MTLC, dataset_size, machine
-from records import chain_record_fields, code_era, store_records
+from records import chain_record_fields, code_era, eval_time_fields, store_records
 
 SETTINGS = ("multi_task", "metaworld_mt10")
 
@@ -28,13 +28,7 @@ def _eval_seconds(eval_dir: Path, task: str) -> float | None:
     """Wall seconds of ``lerobot-eval`` for ``task`` (its ``overall.eval_s``), None where not written."""
     overall = json.loads((eval_dir / task / "eval_info.json").read_text()).get("overall", {})
     seconds = overall.get("eval_s")
-    return None if seconds is None else round(float(seconds), 1)
-
-
-def _eval_time_fields(seconds: float | None, episodes: int) -> dict:
-    """``eval_seconds`` and ``eval_seconds_per_episode`` (what the tables show), both None where not written."""
-    per_episode = None if seconds is None else round(seconds / episodes, 2)
-    return {"eval_seconds": seconds, "eval_seconds_per_episode": per_episode}
+    return None if seconds is None else float(seconds)
 
 
 def records_from_run(run_dir: Path, dataset: Path, provenance: dict) -> list[dict]:
@@ -68,7 +62,7 @@ def records_from_run(run_dir: Path, dataset: Path, provenance: dict) -> list[dic
             "task": task,
             "episodes": result["episodes"],
             "successes": result["successes"],
-            **_eval_time_fields(_eval_seconds(eval_dir, task), result["episodes"]),
+            **eval_time_fields(_eval_seconds(eval_dir, task), result["episodes"]),
         }
         for task, result in read_task_results(eval_dir).items()
     ]

@@ -79,6 +79,14 @@ def store_records(records: list[dict], path: Path = RESULTS_PATH) -> None:
         tmp.replace(path)
 
 
+def eval_time_fields(seconds: float | None, episodes: int) -> dict:
+    """``eval_seconds`` and ``eval_seconds_per_episode`` (the tables' eval s/ep column) of an evaluation that
+    took ``seconds`` of wall time for ``episodes`` episodes; both None where the time was not written."""
+    if seconds is None:
+        return {"eval_seconds": None, "eval_seconds_per_episode": None}
+    return {"eval_seconds": round(seconds, 1), "eval_seconds_per_episode": round(seconds / episodes, 2)}
+
+
 def chain_record_fields(results: Path) -> dict:
     """A chain results file (``--env.results_path``) as record fields: ``episodes`` (chains), ``successes``
     (chains with all five subtasks done), ``avg_len`` and ``chain_sr`` (LH-1..5)."""
