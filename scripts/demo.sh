@@ -16,8 +16,9 @@
 # 39 min, conversion 14 min, training 73 min, the 100 chains 15 min; the 34 single-task evaluations about an
 # hour more; resumable across sessions. Expected: average length about 0.76 (one seed), single tasks 33 %
 # (fixtures 92 %), block tasks not learned. DEMO_PROFILE=gpu scales everything up for a GPU box (small preset,
-# 10x data and steps over all 34 tasks, 100 chains); single sizes can be changed with DEMO_TASKS, DEMO_STEPS, DEMO_EPISODES, DEMO_CHAINS, DEMO_CHAIN_START, DEMO_CHAIN_SHARDS (keep it when
-# resuming), DEMO_WORKERS, DEMO_DIR, and the trained tasks with DEMO_TRAIN_TASKS=fixtures|all.
+# 10x data and steps over all 34 tasks, 100 chains); single sizes can be changed with DEMO_TASKS, DEMO_STEPS,
+# DEMO_EPISODES, DEMO_CHAINS, DEMO_CHAIN_START, DEMO_CHAIN_SHARDS (keep it when resuming), DEMO_WORKERS,
+# DEMO_DIR, and the trained tasks with DEMO_TRAIN_TASKS=fixtures|all.
 # DEMO_CHECKPOINT=<pretrained_model folder> skips stages 1-3 and evaluates that policy (a kept study run resumes
 # its evaluation this way: benchmarks/study/runs/).
 set -euo pipefail
