@@ -21,6 +21,9 @@
 # DEMO_DIR, and the trained tasks with DEMO_TRAIN_TASKS=fixtures|all.
 # DEMO_CHECKPOINT=<pretrained_model folder> skips stages 1-3 and evaluates that policy (a kept study run resumes
 # its evaluation this way: benchmarks/study/runs/).
+# DEMO_POLICY=multi_task_dit trains LeRobot's baseline instead, with the study's flags and random CLIP towers of
+# laptop's size: it stacks its cameras before resizing them, so the data and the env render the static camera
+# at the gripper camera's 84 px (use its own DEMO_DIR); the report has no predicted traces (it has none).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup_venv.sh
@@ -46,6 +49,14 @@ case "${DEMO_PROFILE:-cpu}" in
          PRECISION=bf16 ;;
     *) echo "demo.sh: DEMO_PROFILE=${DEMO_PROFILE} is not valid; use cpu, all34 or gpu" >&2; exit 2 ;;
 esac
+POLICY="${DEMO_POLICY:-subgoalvla}"
+case "$POLICY" in
+    subgoalvla) STATIC_SIZE=200 ;;  # CALVIN's static camera
+    multi_task_dit) STATIC_SIZE=84 ;;  # both cameras of one shape, as multi_task_dit stacks them
+    *) echo "demo.sh: DEMO_POLICY=${POLICY} is not a policy this command trains; use subgoalvla or multi_task_dit" >&2
+       exit 2 ;;
+esac
+ENV_FLAGS=(--env.static_image_size="$STATIC_SIZE")
 OUT="${DEMO_DIR:-outputs/demo}"
 TASKS="${DEMO_TASKS:-$TASKS}"          # expert task attempts recorded as play data
 STEPS="${DEMO_STEPS:-$STEPS}"          # training steps (stage II for the last fifth)
@@ -83,7 +94,7 @@ else
     stage "1/5 generate CALVIN-format play data ($TASKS task attempts, $TRAIN_TASKS tasks) -> $OUT/calvin_native"
     if [ ! -d "$OUT/calvin_native/training" ] || [ ! -d "$OUT/calvin_native/validation" ]; then
         subgoalvla-generate-calvin --output "$OUT/calvin_native" --num-tasks "$TASKS" --seed 0 \
-            --tasks-per-segment 4 --workers "$WORKERS" "${TASK_FLAGS[@]}"
+            --tasks-per-segment 4 --workers "$WORKERS" --static-size "$STATIC_SIZE" "${TASK_FLAGS[@]}"
     fi
 
     stage "2/5 convert to a LeRobotDataset -> $OUT/dataset"
@@ -94,10 +105,21 @@ else
             --workers "$WORKERS" "${resume[@]}"
     fi
 
-    stage "3/5 train SubgoalVLA ($PRESET preset, $STEPS steps x batch $BATCH) -> $OUT/train (log: $TRAIN_LOG)"
     CKPT="$OUT/train/checkpoints/last/pretrained_model"
-    resumable_train "$OUT/train" "$TRAIN_LOG" --policy.type=subgoalvla --policy.preset="$PRESET" \
-        --policy.push_to_hub=false --policy.device="$DEVICE" --policy.stage2_start_step=$((STEPS * 4 / 5)) \
+    if [ "$POLICY" = subgoalvla ]; then
+        stage "3/5 train SubgoalVLA ($PRESET preset, $STEPS steps x batch $BATCH) -> $OUT/train (log: $TRAIN_LOG)"
+        POLICY_FLAGS=(--policy.type=subgoalvla --policy.preset="$PRESET" --policy.stage2_start_step=$((STEPS * 4 / 5)))
+    else
+        stage "3/5 train multi_task_dit ($STEPS steps x batch $BATCH, the study's flags) -> $OUT/train (log: $TRAIN_LOG)"
+        # The baseline's flags have one home, the study (benchmarks/study/multi_task.py).
+        read -r -a POLICY_FLAGS <<< "$(python -c 'import sys; sys.path.insert(0, "benchmarks/study")
+from multi_task import MULTI_TASK_DIT_FLAGS; print(" ".join(MULTI_TASK_DIT_FLAGS))')"
+        CLIP="$(cd "$OUT" && pwd)/random_clip"
+        [ -f "$CLIP/config.json" ] || python benchmarks/study/random_clip.py "$CLIP" > /dev/null
+        POLICY_FLAGS+=(--policy.vision_encoder_name="$CLIP" --policy.text_encoder_name="$CLIP")
+    fi
+    resumable_train "$OUT/train" "$TRAIN_LOG" "${POLICY_FLAGS[@]}" \
+        --policy.push_to_hub=false --policy.device="$DEVICE" \
         --dataset.repo_id=local/calvin_demo --dataset.root="$OUT/dataset" --dataset.video_backend=pyav \
         --steps="$STEPS" --batch_size="$BATCH" --num_workers=1 --log_freq=50 --save_freq=$((STEPS / 4)) --seed=0 \
         --wandb.enable=false $(mixed_precision_flag "$PRECISION")
@@ -105,12 +127,13 @@ fi
 
 stage "4/5 evaluate: LH-MTLC chains $CHAIN_START-$((CHAIN_START + CHAINS - 1)), then ${#EVAL_TASKS[@]} tasks x $EPISODES episodes -> $OUT/eval"
 # The chains first (the headline number), in parallel shards, each resumable (scripts/chain_stage.sh).
-sharded_chains "$CKPT" "$OUT/eval" "$CHAIN_START" "$CHAINS" "$SHARDS"
+sharded_chains "$CKPT" "$OUT/eval" "$CHAIN_START" "$CHAINS" "$SHARDS" "${ENV_FLAGS[@]}"
 for task in "${EVAL_TASKS[@]}"; do
     if [ ! -f "$OUT/eval/$task/eval_info.json" ]; then
         rm -rf "$OUT/eval/$task"
         mkdir -p "$OUT/eval"
-        lerobot-eval --policy.path="$CKPT" --env.type=calvin --env.task="$task" --eval.n_episodes="$EPISODES" \
+        lerobot-eval --policy.path="$CKPT" --env.type=calvin --env.task="$task" "${ENV_FLAGS[@]}" \
+            --eval.n_episodes="$EPISODES" \
             --eval.batch_size=2 --eval.use_async_envs=true --output_dir="$OUT/eval/$task" --seed=1000 \
             > "$OUT/eval/$task.log" 2>&1 || { tail -5 "$OUT/eval/$task.log" >&2; exit 1; }
         python -c "import json,sys; o=json.load(open(sys.argv[1]))['overall']; print(f'   {sys.argv[2]}: {o[\"pc_success\"]:.0f} % of {o[\"n_episodes\"]} episodes')" \
@@ -120,7 +143,7 @@ done
 
 stage "5/5 report -> $OUT/report"
 mkdir -p "$OUT/report"
-[ -f "$OUT/report/traces.png" ] || subgoalvla-render-traces --policy-path "$CKPT" --task open_drawer --steps 90 \
+[ "$POLICY" != subgoalvla ] || [ -f "$OUT/report/traces.png" ] || subgoalvla-render-traces --policy-path "$CKPT" --task open_drawer --steps 90 \
     --seed 1000 --output "$OUT/report/traces.png"
 subgoalvla-calvin-report "$OUT/eval/lh_mtlc/results.jsonl" --output-dir "$OUT/report/lh_mtlc" > "$OUT/report/lh_mtlc.log" 2>&1
 log_flag=()
