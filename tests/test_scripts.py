@@ -122,9 +122,11 @@ def fake_eval(tmp_path):
     return stand_in(tmp_path, "lerobot-eval", FAKE_EVAL)
 
 
-def run_chains(env, eval_dir: Path, first: int, count: int, shards: int) -> subprocess.CompletedProcess:
+def run_chains(
+    env, eval_dir: Path, first: int, count: int, shards: int, *eval_flags: str
+) -> subprocess.CompletedProcess:
     script = f'set -euo pipefail; source "{REPO}/scripts/chain_stage.sh"; sharded_chains "$@"'
-    args = ["ckpt", str(eval_dir), str(first), str(count), str(shards)]
+    args = ["ckpt", str(eval_dir), str(first), str(count), str(shards), *eval_flags]
     return subprocess.run(
         ["bash", "-c", script, "stage", *args], env=env, capture_output=True, text=True, timeout=60
     )
@@ -161,3 +163,11 @@ def test_a_stopped_chain_stage_fails_then_resumes_each_shard_where_it_stopped(fa
     assert sorted(chain_ids(tmp_path / "eval" / "lh_mtlc" / "results.jsonl")) == list(range(30))
     logs = sorted(p.name for p in (tmp_path / "eval").glob("lh_mtlc_shard*.log"))
     assert logs == [f"lh_mtlc_shard{k}_from_{n}.log" for k in range(3) for n in (0, 7)]
+
+
+def test_extra_flags_reach_every_shards_lerobot_eval(fake_eval, tmp_path):
+    env, calls = fake_eval
+    flags = ("--env.static_image_size=84", "--env.gripper_image_size=84")
+    assert run_chains(env, tmp_path / "eval", 0, 4, 2, *flags).returncode == 0
+    for call in calls.iterdir():
+        assert set(flags) <= set(call.read_text().split())
