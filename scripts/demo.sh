@@ -51,12 +51,12 @@ case "${DEMO_PROFILE:-cpu}" in
 esac
 POLICY="${DEMO_POLICY:-subgoalvla}"
 case "$POLICY" in
-    subgoalvla) STATIC_SIZE=200 ;;  # CALVIN's static camera
-    multi_task_dit) STATIC_SIZE=84 ;;  # both cameras of one shape, as multi_task_dit stacks them
+    subgoalvla) GEN_SIZE_FLAGS=(); ENV_FLAGS=() ;;  # the generator's and env's camera sizes (CALVIN's)
+    # both cameras of one shape (the gripper camera's 84 px), as multi_task_dit stacks them
+    multi_task_dit) GEN_SIZE_FLAGS=(--static-size 84); ENV_FLAGS=(--env.static_image_size=84) ;;
     *) echo "demo.sh: DEMO_POLICY=${POLICY} is not a policy this command trains; use subgoalvla or multi_task_dit" >&2
        exit 2 ;;
 esac
-ENV_FLAGS=(--env.static_image_size="$STATIC_SIZE")
 OUT="${DEMO_DIR:-outputs/demo}"
 TASKS="${DEMO_TASKS:-$TASKS}"          # expert task attempts recorded as play data
 STEPS="${DEMO_STEPS:-$STEPS}"          # training steps (stage II for the last fifth)
@@ -94,7 +94,7 @@ else
     stage "1/5 generate CALVIN-format play data ($TASKS task attempts, $TRAIN_TASKS tasks) -> $OUT/calvin_native"
     if [ ! -d "$OUT/calvin_native/training" ] || [ ! -d "$OUT/calvin_native/validation" ]; then
         subgoalvla-generate-calvin --output "$OUT/calvin_native" --num-tasks "$TASKS" --seed 0 \
-            --tasks-per-segment 4 --workers "$WORKERS" --static-size "$STATIC_SIZE" "${TASK_FLAGS[@]}"
+            --tasks-per-segment 4 --workers "$WORKERS" "${GEN_SIZE_FLAGS[@]}" "${TASK_FLAGS[@]}"
     fi
 
     stage "2/5 convert to a LeRobotDataset -> $OUT/dataset"
@@ -111,12 +111,8 @@ else
         POLICY_FLAGS=(--policy.type=subgoalvla --policy.preset="$PRESET" --policy.stage2_start_step=$((STEPS * 4 / 5)))
     else
         stage "3/5 train multi_task_dit ($STEPS steps x batch $BATCH, the study's flags) -> $OUT/train (log: $TRAIN_LOG)"
-        # The baseline's flags have one home, the study (benchmarks/study/multi_task.py).
-        read -r -a POLICY_FLAGS <<< "$(python -c 'import sys; sys.path.insert(0, "benchmarks/study")
-from multi_task import MULTI_TASK_DIT_FLAGS; print(" ".join(MULTI_TASK_DIT_FLAGS))')"
-        CLIP="$(cd "$OUT" && pwd)/random_clip"
-        [ -f "$CLIP/config.json" ] || python benchmarks/study/random_clip.py "$CLIP" > /dev/null
-        POLICY_FLAGS+=(--policy.vision_encoder_name="$CLIP" --policy.text_encoder_name="$CLIP")
+        DIT_FLAGS="$(multi_task_dit_flags "$(cd "$OUT" && pwd)/random_clip")"
+        read -r -a POLICY_FLAGS <<< "$DIT_FLAGS"
     fi
     resumable_train "$OUT/train" "$TRAIN_LOG" "${POLICY_FLAGS[@]}" \
         --policy.push_to_hub=false --policy.device="$DEVICE" \

@@ -64,14 +64,11 @@ if [ "$POLICY" = subgoalvla ]; then
         --policy.stage2_start_step=$((STEPS * 4 / 5)) --dataset.root="$OUT/dataset" "${COMMON_TRAIN_FLAGS[@]}"
 else
     stage "3/5 train multi_task_dit ($STEPS steps x 32, the study's baseline flags) -> $RUN/train (log: $RUN/train.log)"
-    # The baseline's flags have one home, the study (benchmarks/study/multi_task.py); its CLIP towers are random
-    # (no Hub here), the size of laptop's own, with a tokenizer over the dataset's task strings.
-    read -r -a DIT_FLAGS <<< "$(python -c 'import sys; sys.path.insert(0, "benchmarks/study")
-from multi_task import MULTI_TASK_DIT_FLAGS; print(" ".join(MULTI_TASK_DIT_FLAGS))')"
-    CLIP="$(cd "$OUT" && pwd)/random_clip"
-    python benchmarks/study/random_clip.py "$CLIP" --tasks-from "$OUT/raw" > /dev/null
-    resumable_train "$RUN/train" "$RUN/train.log" "${DIT_FLAGS[@]}" --policy.vision_encoder_name="$CLIP" \
-        --policy.text_encoder_name="$CLIP" --dataset.root="$OUT/raw" "${COMMON_TRAIN_FLAGS[@]}"
+    # Its tokenizer covers the dataset's task strings.
+    DIT_LINE="$(multi_task_dit_flags "$(cd "$OUT" && pwd)/random_clip" --tasks-from "$OUT/raw")"
+    read -r -a DIT_FLAGS <<< "$DIT_LINE"
+    resumable_train "$RUN/train" "$RUN/train.log" "${DIT_FLAGS[@]}" --dataset.root="$OUT/raw" \
+        "${COMMON_TRAIN_FLAGS[@]}"
 fi
 
 stage "4/5 evaluate ${#TASKS[@]} tasks x $EVAL_EPISODES episodes in LeRobot's Meta-World env -> $RUN/eval"

@@ -25,3 +25,18 @@ sys.exit("accelerator" not in {f.name for f in dataclasses.fields(C)})' 2>/dev/n
         echo "--accelerator.mixed_precision=$1"
     fi
 }
+
+# LeRobot's multi_task_dit as the study trains it (the flags' one home is benchmarks/study/multi_task.py), with
+# random CLIP towers of laptop's size saved in CLIP_DIR once (no Hub here); prints the lerobot-train flags on
+# one line, fails when the towers cannot be made (call it in an assignment, so that set -e sees the failure).
+#   multi_task_dit_flags CLIP_DIR [random_clip.py ARGS...]
+multi_task_dit_flags() {
+    local clip="$1" flags
+    shift
+    if [ ! -f "$clip/config.json" ]; then
+        python benchmarks/study/random_clip.py "$clip" "$@" > /dev/null || return 1
+    fi
+    flags="$(python -c 'import sys; sys.path.insert(0, "benchmarks/study")
+from multi_task import MULTI_TASK_DIT_FLAGS; print(" ".join(MULTI_TASK_DIT_FLAGS))')" || return 1
+    echo "$flags --policy.vision_encoder_name=$clip --policy.text_encoder_name=$clip"
+}

@@ -171,3 +171,26 @@ def test_extra_flags_reach_every_shards_lerobot_eval(fake_eval, tmp_path):
     assert run_chains(env, tmp_path / "eval", 0, 4, 2, *flags).returncode == 0
     for call in calls.iterdir():
         assert set(flags) <= set(call.read_text().split())
+
+
+def run_dit_flags(clip: Path) -> subprocess.CompletedProcess:
+    script = (
+        f'set -euo pipefail; cd "{REPO}"; source scripts/train_stage.sh; '
+        'line="$(multi_task_dit_flags "$1")"; read -r -a flags <<< "$line"; printf "%s\\n" "${flags[@]}"'
+    )
+    return subprocess.run(["bash", "-c", script, "stage", str(clip)], capture_output=True, text=True, timeout=120)
+
+
+def test_the_baselines_flags_name_a_random_clip_saved_once(tmp_path):
+    result = run_dit_flags(tmp_path / "random_clip")
+    assert result.returncode == 0, result.stderr
+    flags = result.stdout.split()
+    assert "--policy.type=multi_task_dit" in flags
+    assert f"--policy.vision_encoder_name={tmp_path / 'random_clip'}" in flags
+    assert (tmp_path / "random_clip" / "config.json").is_file()
+
+
+def test_a_clip_folder_the_baseline_cannot_use_fails_the_caller(tmp_path):
+    result = run_dit_flags(tmp_path / "towers")  # multi_task_dit needs "clip" in the name
+    assert result.returncode != 0
+    assert result.stdout == ""
