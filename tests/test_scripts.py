@@ -178,7 +178,8 @@ def run_dit_flags(clip: Path) -> subprocess.CompletedProcess:
         f'set -euo pipefail; cd "{REPO}"; source scripts/train_stage.sh; '
         'line="$(multi_task_dit_flags "$1")"; read -r -a flags <<< "$line"; printf "%s\\n" "${flags[@]}"'
     )
-    return subprocess.run(["bash", "-c", script, "stage", str(clip)], capture_output=True, text=True, timeout=120)
+    command = ["bash", "-c", script, "stage", str(clip)]
+    return subprocess.run(command, capture_output=True, text=True, timeout=120)
 
 
 def test_the_baselines_flags_name_a_random_clip_saved_once(tmp_path):
