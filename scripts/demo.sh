@@ -18,7 +18,8 @@
 # (fixtures 92 %), block tasks not learned. DEMO_PROFILE=gpu scales everything up for a GPU box (small preset,
 # 10x data and steps over all 34 tasks, 100 chains); single sizes can be changed with DEMO_TASKS, DEMO_STEPS,
 # DEMO_EPISODES, DEMO_CHAINS, DEMO_CHAIN_START, DEMO_CHAIN_SHARDS (keep it when resuming), DEMO_WORKERS,
-# DEMO_DIR, and the trained tasks with DEMO_TRAIN_TASKS=fixtures|all.
+# DEMO_DIR, the trained tasks with DEMO_TRAIN_TASKS=fixtures|all, and the profile's extra SubgoalVLA flags with
+# DEMO_RECIPE_FLAGS (set but empty: the plain laptop preset).
 # DEMO_CHECKPOINT=<pretrained_model folder> skips stages 1-3 and evaluates that policy (a kept study run resumes
 # its evaluation this way: benchmarks/study/runs/).
 # DEMO_POLICY=multi_task_dit trains LeRobot's baseline instead, with the study's flags and random CLIP towers of
@@ -54,6 +55,8 @@ case "${DEMO_PROFILE:-cpu}" in
          PRECISION=bf16 ;;
     *) echo "demo.sh: DEMO_PROFILE=${DEMO_PROFILE} is not valid; use cpu, all34 or gpu" >&2; exit 2 ;;
 esac
+# DEMO_RECIPE_FLAGS replaces the profile's extra SubgoalVLA flags (an ablation of the recipe; empty: plain laptop)
+if [ -n "${DEMO_RECIPE_FLAGS+set}" ]; then read -r -a RECIPE_FLAGS <<< "$DEMO_RECIPE_FLAGS"; fi
 POLICY="${DEMO_POLICY:-subgoalvla}"
 case "$POLICY" in
     subgoalvla) GEN_SIZE_FLAGS=(); ENV_FLAGS=() ;;  # the generator's and env's camera sizes (CALVIN's)

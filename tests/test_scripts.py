@@ -179,7 +179,7 @@ def run_dit_flags(clip: Path) -> subprocess.CompletedProcess:
         'line="$(multi_task_dit_flags "$1")"; read -r -a flags <<< "$line"; printf "%s\\n" "${flags[@]}"'
     )
     command = ["bash", "-c", script, "stage", str(clip)]
-    return subprocess.run(command, capture_output=True, text=True, timeout=120)
+    return subprocess.run(command, capture_output=True, text=True, timeout=300)
 
 
 def test_the_baselines_flags_name_a_random_clip_saved_once(tmp_path):
