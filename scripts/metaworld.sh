@@ -12,7 +12,9 @@
 # (4-30 min per task: an unsolved episode runs LeRobot's 500-step limit); about 5 h in all. Expected result
 # (docs/RESULTS.md, "Meta-World MT10"): SubgoalVLA about 41 % over MT10, drawers and window-close solved,
 # grasping tasks not.
-# MW_POLICY / MW_TASKS / MW_EPISODES / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the run. Two
+# MW_POLICY / MW_TASKS / MW_EPISODES / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the run, and
+# MW_RECIPE_FLAGS adds SubgoalVLA flags to laptop's (e.g. "--policy.backbone.image_size=160
+# --policy.backbone.patch_size=20", CALVIN's recipe 2: 4x the pixels at the same 64 image tokens). Two
 # policies may share MW_DIR (the data stages are shared; start the second once the first has its data).
 # Every stage resumes or is skipped when its output is there, so an interrupted run continues.
 # Window: Meta-World's expert episodes last 35-90 steps at a nominal 80 fps, so the fps-scaled window (up to 58
@@ -33,6 +35,7 @@ STEPS="${MW_STEPS:-2000}"                # training steps (stage II for the last
 EVAL_EPISODES="${MW_EVAL_EPISODES:-10}"  # evaluation episodes per task
 WORKERS="${MW_WORKERS:-2}"
 OUT="${MW_DIR:-outputs/metaworld}"
+read -r -a RECIPE_FLAGS <<< "${MW_RECIPE_FLAGS:-}"  # extra SubgoalVLA flags (none: the plain laptop preset)
 REPO=local/metaworld
 mkdir -p "$OUT"
 started=$(date +%s)
@@ -61,7 +64,8 @@ COMMON_TRAIN_FLAGS=(--policy.push_to_hub=false --policy.device=cpu --dataset.rep
 if [ "$POLICY" = subgoalvla ]; then
     stage "3/5 train SubgoalVLA (laptop preset, $STEPS steps x 32) -> $RUN/train (log: $RUN/train.log)"
     resumable_train "$RUN/train" "$RUN/train.log" --policy.type=subgoalvla --policy.preset=laptop \
-        --policy.stage2_start_step=$((STEPS * 4 / 5)) --dataset.root="$OUT/dataset" "${COMMON_TRAIN_FLAGS[@]}"
+        --policy.stage2_start_step=$((STEPS * 4 / 5)) "${RECIPE_FLAGS[@]}" --dataset.root="$OUT/dataset" \
+        "${COMMON_TRAIN_FLAGS[@]}"
 else
     stage "3/5 train multi_task_dit ($STEPS steps x 32, the study's baseline flags) -> $RUN/train (log: $RUN/train.log)"
     # Its tokenizer covers the dataset's task strings.
