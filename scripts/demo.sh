@@ -12,10 +12,10 @@
 # length stays below 1.
 # Every stage resumes or is skipped when its output is already there, so an interrupted demo continues.
 # DEMO_PROFILE=all34 is CALVIN's headline on a CPU (recipe 2): all 34 tasks with balanced segment starts and
-# block tasks favoured (900 attempts), 160 px images, 10000 steps, chains 100-199, then every task 10 episodes.
-# Measured on 2 idle cores (docs/RESULTS.md): generation 13 min, conversion 7 min, training 72 min, the 100
-# chains and then the 34 single tasks 39 min (about 2 h 10 min in all); resumable across sessions.
-# Expected: average length about 0.97 (one seed), single tasks 39 % (fixtures 99 %), most block tasks not
+# block tasks favoured (900 attempts), 160 px images, 16000 steps, chains 100-199, then every task 10 episodes.
+# Measured on 2 idle cores (docs/RESULTS.md): generation 13 min, conversion 7 min, training 107 min, the 100
+# chains and then the 34 single tasks 39 min (about 2 h 50 min in all); resumable across sessions.
+# Expected: average length about 1.0 (1.03, one seed), single tasks 41 % (fixtures 96 %), most block tasks not
 # learned. DEMO_PROFILE=gpu scales everything up for a GPU box (small preset,
 # 10x data and steps over all 34 tasks, 100 chains); single sizes can be changed with DEMO_TASKS, DEMO_STEPS,
 # DEMO_EPISODES, DEMO_CHAINS, DEMO_CHAIN_START, DEMO_CHAIN_SHARDS (keep it when resuming), DEMO_WORKERS,
@@ -46,7 +46,7 @@ case "${DEMO_PROFILE:-cpu}" in
     # task (the first recipe gave them a median of 12 windows to the fixtures' 50), and 160 px cut into 20 px
     # patches: the same 64 image tokens (the same transformer cost) with 4x the pixels, as at 80 px a block in
     # the static camera's half of the image is about 2 x 4 pixels and the policy reached for the wrong colour.
-    all34) PRESET=laptop; TASKS=900; STEPS=10000; BATCH=32; EPISODES=10; CHAINS=100; CHAIN_START=100; DEVICE=cpu
+    all34) PRESET=laptop; TASKS=900; STEPS=16000; BATCH=32; EPISODES=10; CHAINS=100; CHAIN_START=100; DEVICE=cpu
          TRAIN_TASKS=all; FIXTURE_WEIGHT=0.5
          RECIPE_FLAGS=(--policy.backbone.image_size=160 --policy.backbone.patch_size=20)
          PRECISION=no; export HF_HUB_OFFLINE=1 ;;
