@@ -22,7 +22,7 @@
 # DEMO_DIR, the trained tasks with DEMO_TRAIN_TASKS=fixtures|all, and the profile's extra SubgoalVLA flags with
 # DEMO_RECIPE_FLAGS (set but empty: the plain laptop preset).
 # DEMO_CHECKPOINT=<pretrained_model folder> skips stages 1-3 and evaluates that policy (a kept study run resumes
-# its evaluation this way: benchmarks/study/runs/).
+# its evaluation this way: benchmarks/study/runs/); DEMO_EVAL_FLAGS adds lerobot-eval flags to every evaluation.
 # DEMO_POLICY=multi_task_dit trains LeRobot's baseline instead, with the study's flags and random CLIP towers of
 # laptop's size: it stacks its cameras before resizing them, so the data and the env render the static camera
 # at the gripper camera's 84 px (use its own DEMO_DIR); the report has no predicted traces (it has none).
@@ -66,6 +66,8 @@ case "$POLICY" in
     *) echo "demo.sh: DEMO_POLICY=${POLICY} is not a policy this command trains; use subgoalvla or multi_task_dit" >&2
        exit 2 ;;
 esac
+# DEMO_EVAL_FLAGS: extra lerobot-eval flags for every evaluation (e.g. --policy.n_action_steps=4 on a kept policy)
+if [ -n "${DEMO_EVAL_FLAGS:-}" ]; then read -r -a EXTRA_EVAL_FLAGS <<< "$DEMO_EVAL_FLAGS"; ENV_FLAGS+=("${EXTRA_EVAL_FLAGS[@]}"); fi
 OUT="${DEMO_DIR:-outputs/demo}"
 TASKS="${DEMO_TASKS:-$TASKS}"          # expert task attempts recorded as play data
 STEPS="${DEMO_STEPS:-$STEPS}"          # training steps (stage II for the last fifth)

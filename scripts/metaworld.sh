@@ -12,9 +12,10 @@
 # (4-30 min per task: an unsolved episode runs LeRobot's 500-step limit); about 5 h in all. Expected result
 # (docs/RESULTS.md, "Meta-World MT10"): SubgoalVLA about 41 % over MT10, drawers and window-close solved,
 # grasping tasks not.
-# MW_POLICY / MW_TASKS / MW_EPISODES / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the run, and
+# MW_POLICY / MW_TASKS / MW_EPISODES / MW_ACTION_NOISE / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the run, and
 # MW_RECIPE_FLAGS adds SubgoalVLA flags to laptop's (e.g. "--policy.backbone.image_size=160
-# --policy.backbone.patch_size=20", CALVIN's recipe 2: 4x the pixels at the same 64 image tokens). Two
+# --policy.backbone.patch_size=20", CALVIN's recipe 2: 4x the pixels at the same 64 image tokens) and
+# MW_EVAL_FLAGS lerobot-eval flags to every task's evaluation. Two
 # policies may share MW_DIR (the data stages are shared; start the second once the first has its data).
 # Every stage resumes or is skipped when its output is there, so an interrupted run continues.
 # Window: Meta-World's expert episodes last 35-90 steps at a nominal 80 fps, so the fps-scaled window (up to 58
@@ -31,11 +32,13 @@ MT10=(reach-v3 push-v3 pick-place-v3 door-open-v3 drawer-open-v3 drawer-close-v3
 read -r -a TASKS <<< "${MW_TASKS:-${MT10[*]}}"
 POLICY="${MW_POLICY:-subgoalvla}"
 EPISODES="${MW_EPISODES:-15}"            # expert episodes per task
+ACTION_NOISE="${MW_ACTION_NOISE:-0}"     # std of the noise added to the expert's executed actions (labels clean)
 STEPS="${MW_STEPS:-2000}"                # training steps (stage II for the last fifth)
 EVAL_EPISODES="${MW_EVAL_EPISODES:-10}"  # evaluation episodes per task
 WORKERS="${MW_WORKERS:-2}"
 OUT="${MW_DIR:-outputs/metaworld}"
 read -r -a RECIPE_FLAGS <<< "${MW_RECIPE_FLAGS:-}"  # extra SubgoalVLA flags (none: the plain laptop preset)
+read -r -a EVAL_FLAGS <<< "${MW_EVAL_FLAGS:-}"      # extra lerobot-eval flags (e.g. --policy.n_action_steps=4)
 REPO=local/metaworld
 mkdir -p "$OUT"
 started=$(date +%s)
@@ -50,7 +53,7 @@ stage() { echo "== [$(( ($(date +%s) - started) / 60 )) min] $*"; }
 stage "1/5 record ${#TASKS[@]} tasks x $EPISODES expert episodes -> $OUT/raw"
 if [ ! -f "$OUT/raw/meta/info.json" ]; then
     subgoalvla-generate-metaworld --output-root "$OUT/raw" --repo-id "$REPO" --tasks "$(IFS=,; echo "${TASKS[*]}")" \
-        --episodes-per-task "$EPISODES" --seed 0 --workers "$WORKERS"
+        --episodes-per-task "$EPISODES" --action-noise "$ACTION_NOISE" --seed 0 --workers "$WORKERS"
 fi
 
 stage "2/5 add state history and subgoal traces -> $OUT/dataset"
@@ -82,7 +85,7 @@ for task in "${TASKS[@]}"; do
         rm -rf "$RUN/eval/$task"
         lerobot-eval --policy.path="$CKPT" --env.type=metaworld --env.task="$task" \
             --eval.n_episodes="$EVAL_EPISODES" --eval.batch_size=2 --eval.use_async_envs=true \
-            --output_dir="$RUN/eval/$task" --seed=1000 > "$RUN/eval/$task.log" 2>&1 \
+            --output_dir="$RUN/eval/$task" --seed=1000 "${EVAL_FLAGS[@]}" > "$RUN/eval/$task.log" 2>&1 \
             || { tail -5 "$RUN/eval/$task.log" >&2; exit 1; }
         python -c "import json,sys; o=json.load(open(sys.argv[1]))['overall']; print(f'   {sys.argv[2]}: {o[\"pc_success\"]:.0f} % of {o[\"n_episodes\"]} episodes')" \
             "$RUN/eval/$task/eval_info.json" "$task"
