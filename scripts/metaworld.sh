@@ -12,11 +12,13 @@
 # (4-30 min per task: an unsolved episode runs LeRobot's 500-step limit); about 5 h in all. Expected result
 # (docs/RESULTS.md, "Meta-World MT10"): SubgoalVLA about 41 % over MT10, drawers and window-close solved,
 # grasping tasks not.
-# MW_POLICY / MW_TASKS / MW_EPISODES / MW_ACTION_NOISE / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the run, and
-# MW_RECIPE_FLAGS adds SubgoalVLA flags to laptop's (e.g. "--policy.backbone.image_size=160
+# MW_POLICY / MW_TASKS / MW_EPISODES / MW_ACTION_NOISE / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the
+# run; MW_RECIPE_FLAGS adds SubgoalVLA flags to laptop's (e.g. "--policy.backbone.image_size=160
 # --policy.backbone.patch_size=20", CALVIN's recipe 2: 4x the pixels at the same 64 image tokens) and
-# MW_EVAL_FLAGS lerobot-eval flags to every task's evaluation. Two
-# policies may share MW_DIR (the data stages are shared; start the second once the first has its data).
+# MW_EVAL_FLAGS lerobot-eval flags to every task's evaluation. Two policies may share MW_DIR (the data stages are
+# shared; start the second once the first has its data).
+# MW_CHECKPOINT=<pretrained_model folder> skips stages 1-3 and evaluates that policy (a kept study run continues
+# its evaluation this way: benchmarks/study/runs/).
 # Every stage resumes or is skipped when its output is there, so an interrupted run continues.
 # Window: Meta-World's expert episodes last 35-90 steps at a nominal 80 fps, so the fps-scaled window (up to 58
 # steps ahead) would span most of an episode; the paper's frame counts (trace 14-21 steps ahead) are used.
@@ -50,32 +52,44 @@ esac
 RUN="$OUT/$POLICY"
 stage() { echo "== [$(( ($(date +%s) - started) / 60 )) min] $*"; }
 
-stage "1/5 record ${#TASKS[@]} tasks x $EPISODES expert episodes -> $OUT/raw"
-if [ ! -f "$OUT/raw/meta/info.json" ]; then
-    subgoalvla-generate-metaworld --output-root "$OUT/raw" --repo-id "$REPO" --tasks "$(IFS=,; echo "${TASKS[*]}")" \
-        --episodes-per-task "$EPISODES" --action-noise "$ACTION_NOISE" --seed 0 --workers "$WORKERS"
-fi
-
-stage "2/5 add state history and subgoal traces -> $OUT/dataset"
-[ -d "$OUT/dataset" ] || subgoalvla-add-traces --repo-id "$REPO" --root "$OUT/raw" --output-root "$OUT/dataset" \
-    --trace-start 14 --stride 1
-
-CKPT="$RUN/train/checkpoints/last/pretrained_model"
-COMMON_TRAIN_FLAGS=(--policy.push_to_hub=false --policy.device=cpu --dataset.repo_id="$REPO"
-    --dataset.video_backend=pyav --steps="$STEPS" --batch_size=32 --num_workers=1 --log_freq=50
-    --save_freq=$((STEPS / 4)) --seed=0 --wandb.enable=false)
-if [ "$POLICY" = subgoalvla ]; then
-    stage "3/5 train SubgoalVLA (laptop preset, $STEPS steps x 32) -> $RUN/train (log: $RUN/train.log)"
-    resumable_train "$RUN/train" "$RUN/train.log" --policy.type=subgoalvla --policy.preset=laptop \
-        --policy.stage2_start_step=$((STEPS * 4 / 5)) "${RECIPE_FLAGS[@]}" --dataset.root="$OUT/dataset" \
-        "${COMMON_TRAIN_FLAGS[@]}"
+TRAIN_LOG="$RUN/train.log"
+if [ -n "${MW_CHECKPOINT:-}" ]; then
+    # Evaluate a trained policy (e.g. a run the study keeps in the repository) instead of training one.
+    CKPT="$MW_CHECKPOINT"
+    if [ ! -f "$CKPT/config.json" ]; then
+        echo "metaworld.sh: MW_CHECKPOINT=$CKPT has no config.json; pass a pretrained_model folder" >&2
+        exit 2
+    fi
+    TRAIN_LOG="$(dirname "$CKPT")/train.log"  # its training log, where it was kept beside it
+    stage "1-3/5 skipped: evaluating MW_CHECKPOINT=$CKPT"
 else
-    stage "3/5 train multi_task_dit ($STEPS steps x 32, the study's baseline flags) -> $RUN/train (log: $RUN/train.log)"
-    # Its tokenizer covers the dataset's task strings.
-    DIT_LINE="$(multi_task_dit_flags "$(cd "$OUT" && pwd)/random_clip" --tasks-from "$OUT/raw")"
-    read -r -a DIT_FLAGS <<< "$DIT_LINE"
-    resumable_train "$RUN/train" "$RUN/train.log" "${DIT_FLAGS[@]}" --dataset.root="$OUT/raw" \
-        "${COMMON_TRAIN_FLAGS[@]}"
+    stage "1/5 record ${#TASKS[@]} tasks x $EPISODES expert episodes -> $OUT/raw"
+    if [ ! -f "$OUT/raw/meta/info.json" ]; then
+        subgoalvla-generate-metaworld --output-root "$OUT/raw" --repo-id "$REPO" \
+            --tasks "$(IFS=,; echo "${TASKS[*]}")" --episodes-per-task "$EPISODES" --action-noise "$ACTION_NOISE" --seed 0 --workers "$WORKERS"
+    fi
+
+    stage "2/5 add state history and subgoal traces -> $OUT/dataset"
+    [ -d "$OUT/dataset" ] || subgoalvla-add-traces --repo-id "$REPO" --root "$OUT/raw" --output-root "$OUT/dataset" \
+        --trace-start 14 --stride 1
+
+    CKPT="$RUN/train/checkpoints/last/pretrained_model"
+    COMMON_TRAIN_FLAGS=(--policy.push_to_hub=false --policy.device=cpu --dataset.repo_id="$REPO"
+        --dataset.video_backend=pyav --steps="$STEPS" --batch_size=32 --num_workers=1 --log_freq=50
+        --save_freq=$((STEPS / 4)) --seed=0 --wandb.enable=false)
+    if [ "$POLICY" = subgoalvla ]; then
+        stage "3/5 train SubgoalVLA (laptop preset, $STEPS steps x 32) -> $RUN/train (log: $RUN/train.log)"
+        resumable_train "$RUN/train" "$TRAIN_LOG" --policy.type=subgoalvla --policy.preset=laptop \
+            --policy.stage2_start_step=$((STEPS * 4 / 5)) "${RECIPE_FLAGS[@]}" --dataset.root="$OUT/dataset" \
+            "${COMMON_TRAIN_FLAGS[@]}"
+    else
+        stage "3/5 train multi_task_dit ($STEPS steps x 32, the study's baseline flags) -> $RUN/train (log: $TRAIN_LOG)"
+        # Its tokenizer covers the dataset's task strings.
+        DIT_LINE="$(multi_task_dit_flags "$(cd "$OUT" && pwd)/random_clip" --tasks-from "$OUT/raw")"
+        read -r -a DIT_FLAGS <<< "$DIT_LINE"
+        resumable_train "$RUN/train" "$TRAIN_LOG" "${DIT_FLAGS[@]}" --dataset.root="$OUT/raw" \
+            "${COMMON_TRAIN_FLAGS[@]}"
+    fi
 fi
 
 stage "4/5 evaluate ${#TASKS[@]} tasks x $EVAL_EPISODES episodes in LeRobot's Meta-World env -> $RUN/eval"
@@ -98,6 +112,8 @@ if [ "$POLICY" = subgoalvla ] && [ ! -f "$RUN/report/trace_plot.png" ]; then
     subgoalvla-plot-traces --policy-path "$CKPT" --env-type metaworld --task "${TASKS[0]}" --seed 1000 \
         --output "$RUN/report/trace_plot.png"
 fi
-subgoalvla-demo-report --train-log "$RUN/train.log" --eval-dir "$RUN/eval" --output-dir "$RUN/report" \
+log_flag=()
+[ -f "$TRAIN_LOG" ] && log_flag=(--train-log "$TRAIN_LOG")
+subgoalvla-demo-report "${log_flag[@]}" --eval-dir "$RUN/eval" --output-dir "$RUN/report" \
     --title "$POLICY on Meta-World (${#TASKS[@]} tasks, $EVAL_EPISODES episodes each)"
 stage "done: report $RUN/report/README.md"
