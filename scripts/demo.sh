@@ -95,11 +95,7 @@ TRAIN_LOG="$OUT/train.log"
 if [ -n "${DEMO_CHECKPOINT:-}" ]; then
     # Evaluate a trained policy (e.g. a run the study keeps in the repository) instead of training one.
     CKPT="$DEMO_CHECKPOINT"
-    if [ ! -f "$CKPT/config.json" ]; then
-        echo "demo.sh: DEMO_CHECKPOINT=$CKPT has no config.json; pass a pretrained_model folder" >&2
-        exit 2
-    fi
-    TRAIN_LOG="$(dirname "$CKPT")/train.log"  # its training log, where it was kept beside it
+    TRAIN_LOG="$(kept_checkpoint DEMO_CHECKPOINT "$CKPT")"
     stage "1-3/5 skipped: evaluating DEMO_CHECKPOINT=$CKPT"
 else
     stage "1/5 generate CALVIN-format play data ($TASKS task attempts, $TRAIN_TASKS tasks) -> $OUT/calvin_native"

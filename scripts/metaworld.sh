@@ -56,11 +56,7 @@ TRAIN_LOG="$RUN/train.log"
 if [ -n "${MW_CHECKPOINT:-}" ]; then
     # Evaluate a trained policy (e.g. a run the study keeps in the repository) instead of training one.
     CKPT="$MW_CHECKPOINT"
-    if [ ! -f "$CKPT/config.json" ]; then
-        echo "metaworld.sh: MW_CHECKPOINT=$CKPT has no config.json; pass a pretrained_model folder" >&2
-        exit 2
-    fi
-    TRAIN_LOG="$(dirname "$CKPT")/train.log"  # its training log, where it was kept beside it
+    TRAIN_LOG="$(kept_checkpoint MW_CHECKPOINT "$CKPT")"
     stage "1-3/5 skipped: evaluating MW_CHECKPOINT=$CKPT"
 else
     stage "1/5 record ${#TASKS[@]} tasks x $EPISODES expert episodes -> $OUT/raw"

@@ -1,4 +1,5 @@
-# Sourced by the end-to-end commands (scripts/demo.sh, scripts/metaworld.sh): their resumable training stage.
+# Sourced by the end-to-end commands (scripts/demo.sh, scripts/metaworld.sh): their resumable training stage and
+# its alternatives (a kept policy, LeRobot's baseline).
 #   resumable_train OUT_DIR LOG LEROBOT_TRAIN_FLAGS...
 # Runs lerobot-train into OUT_DIR (log in LOG); an interrupted run continues from its last checkpoint with
 # --resume=true; a finished one (OUT_DIR/.done) is skipped.
@@ -14,6 +15,18 @@ resumable_train() {
         lerobot-train "$@" --output_dir="$out" 2>&1 | tee "$log"
     fi
     touch "$out/.done"
+}
+
+# A trained policy to evaluate instead of training one (a run the study keeps: benchmarks/study/runs/).
+#   kept_checkpoint VARIABLE_NAME PRETRAINED_MODEL_DIR
+# Exits with one line naming the variable when the folder has no config.json; prints the path of the training
+# log kept beside the folder (train.log; the reports read it where it exists).
+kept_checkpoint() {
+    if [ ! -f "$2/config.json" ]; then
+        echo "$(basename "$0"): $1=$2 has no config.json; pass a pretrained_model folder" >&2
+        exit 2
+    fi
+    echo "$(dirname "$2")/train.log"
 }
 
 # lerobot-train's mixed-precision flag where LeRobot has one (after 0.6.1), else nothing: LeRobot 0.6.1 takes the
