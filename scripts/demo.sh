@@ -67,7 +67,8 @@ case "$POLICY" in
        exit 2 ;;
 esac
 # DEMO_EVAL_FLAGS: extra lerobot-eval flags for every evaluation (e.g. --policy.n_action_steps=4 on a kept policy)
-if [ -n "${DEMO_EVAL_FLAGS:-}" ]; then read -r -a EXTRA_EVAL_FLAGS <<< "$DEMO_EVAL_FLAGS"; ENV_FLAGS+=("${EXTRA_EVAL_FLAGS[@]}"); fi
+read -r -a EXTRA_EVAL_FLAGS <<< "${DEMO_EVAL_FLAGS:-}"
+ENV_FLAGS+=("${EXTRA_EVAL_FLAGS[@]}")
 OUT="${DEMO_DIR:-outputs/demo}"
 TASKS="${DEMO_TASKS:-$TASKS}"          # expert task attempts recorded as play data
 STEPS="${DEMO_STEPS:-$STEPS}"          # training steps (stage II for the last fifth)

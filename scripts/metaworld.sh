@@ -62,7 +62,8 @@ else
     stage "1/5 record ${#TASKS[@]} tasks x $EPISODES expert episodes -> $OUT/raw"
     if [ ! -f "$OUT/raw/meta/info.json" ]; then
         subgoalvla-generate-metaworld --output-root "$OUT/raw" --repo-id "$REPO" \
-            --tasks "$(IFS=,; echo "${TASKS[*]}")" --episodes-per-task "$EPISODES" --action-noise "$ACTION_NOISE" --seed 0 --workers "$WORKERS"
+            --tasks "$(IFS=,; echo "${TASKS[*]}")" --episodes-per-task "$EPISODES" --action-noise "$ACTION_NOISE" \
+            --seed 0 --workers "$WORKERS"
     fi
 
     stage "2/5 add state history and subgoal traces -> $OUT/dataset"
