@@ -6,17 +6,19 @@
 #      baseline multi_task_dit (LeRobot's, random CLIP towers of laptop's size, on the recorded data as is)
 #   4. lerobot-eval --env.type=metaworld --env.task=<task> for every task, LeRobot's env unchanged
 #   5. the report: success per task with its interval, loss curves, links to the rollout videos
-# Defaults: the 10 MT10 tasks, 15 expert episodes each, 2000 steps x 32, 10 evaluation episodes per task on
-# seed 1000 on (data seeds derive from --seed 0). Time on 2 CPU cores (measured with other jobs running):
-# generation ~55 min (rendering 480 px is 94 % of it), training ~45 min (multi_task_dit ~2x), evaluation ~170 min
-# (4-30 min per task: an unsolved episode runs LeRobot's 500-step limit); about 5 h in all. Expected result
-# (docs/RESULTS.md, "Meta-World MT10"): SubgoalVLA about 41 % over MT10, drawers and window-close solved,
-# grasping tasks not.
+# Defaults (recipe 2, docs/RESULTS.md "Meta-World MT10"): the 10 MT10 tasks, 30 expert episodes each executed
+# with action noise 0.1 (labels clean), 6000 steps x 32, SubgoalVLA at 160 px in 20 px patches with
+# n_action_steps=4, 10 evaluation episodes per task on seed 1000 on (data seeds derive from --seed 0). Time on 2
+# CPU cores, nothing else running: generation ~32 min (rendering 480 px is most of it), training ~39 min
+# (multi_task_dit about 2x: it decodes two frames per sample), evaluation ~110 min (3-16 min per task: an
+# unsolved episode runs LeRobot's 500-step limit); about 3 h in all. Expected result: SubgoalVLA about 54 %
+# over MT10 (one training seed): drawers, window-close and door-open solved, grasping tasks and reach not.
+# The first recipe (MW_EPISODES=15 MW_ACTION_NOISE=0 MW_STEPS=2000 MW_RECIPE_FLAGS=) scored 41 %.
 # MW_POLICY / MW_TASKS / MW_EPISODES / MW_ACTION_NOISE / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the
-# run; MW_RECIPE_FLAGS adds SubgoalVLA flags to laptop's (e.g. "--policy.backbone.image_size=160
-# --policy.backbone.patch_size=20", CALVIN's recipe 2: 4x the pixels at the same 64 image tokens) and
-# MW_EVAL_FLAGS lerobot-eval flags to every task's evaluation. Two policies may share MW_DIR (the data stages are
-# shared; start the second once the first has its data).
+# run; MW_RECIPE_FLAGS sets the SubgoalVLA flags added to laptop's (default: CALVIN's recipe-2 pixels, 4x
+# laptop's at the same 64 image tokens, and n_action_steps=4) and MW_EVAL_FLAGS lerobot-eval flags to every
+# task's evaluation. Two policies may share MW_DIR (the data stages are shared; start the second once the first
+# has its data).
 # MW_CHECKPOINT=<pretrained_model folder> skips stages 1-3 and evaluates that policy (a kept study run continues
 # its evaluation this way: benchmarks/study/runs/).
 # Every stage resumes or is skipped when its output is there, so an interrupted run continues.
@@ -33,13 +35,15 @@ MT10=(reach-v3 push-v3 pick-place-v3 door-open-v3 drawer-open-v3 drawer-close-v3
     peg-insert-side-v3 window-open-v3 window-close-v3)
 read -r -a TASKS <<< "${MW_TASKS:-${MT10[*]}}"
 POLICY="${MW_POLICY:-subgoalvla}"
-EPISODES="${MW_EPISODES:-15}"            # expert episodes per task
-ACTION_NOISE="${MW_ACTION_NOISE:-0}"     # std of the noise added to the expert's executed actions (labels clean)
-STEPS="${MW_STEPS:-2000}"                # training steps (stage II for the last fifth)
+EPISODES="${MW_EPISODES:-30}"            # expert episodes per task
+ACTION_NOISE="${MW_ACTION_NOISE:-0.1}"   # std of the noise added to the expert's executed actions (labels clean)
+STEPS="${MW_STEPS:-6000}"                # training steps (stage II for the last fifth)
 EVAL_EPISODES="${MW_EVAL_EPISODES:-10}"  # evaluation episodes per task
 WORKERS="${MW_WORKERS:-2}"
 OUT="${MW_DIR:-outputs/metaworld}"
-read -r -a RECIPE_FLAGS <<< "${MW_RECIPE_FLAGS:-}"  # extra SubgoalVLA flags (none: the plain laptop preset)
+# Extra SubgoalVLA flags on top of laptop's (set MW_RECIPE_FLAGS= for the plain laptop preset).
+read -r -a RECIPE_FLAGS <<< \
+    "${MW_RECIPE_FLAGS-"--policy.backbone.image_size=160 --policy.backbone.patch_size=20 --policy.n_action_steps=4"}"
 read -r -a EVAL_FLAGS <<< "${MW_EVAL_FLAGS:-}"      # extra lerobot-eval flags (e.g. --policy.n_action_steps=4)
 REPO=local/metaworld
 mkdir -p "$OUT"
