@@ -10,8 +10,8 @@
 # with action noise 0.1 (labels clean), 6000 steps x 32, SubgoalVLA at 160 px in 20 px patches with
 # n_action_steps=4, 10 evaluation episodes per task on seed 1000 on (data seeds derive from --seed 0). Time on 2
 # CPU cores, nothing else running: generation ~32 min (rendering 480 px is most of it), training ~39 min
-# (multi_task_dit about 2x: it decodes two frames per sample), evaluation ~110 min (3-16 min per task: an
-# unsolved episode runs LeRobot's 500-step limit); about 3 h in all. Expected result: SubgoalVLA about 54 %
+# (multi_task_dit about 2x: it decodes two frames per sample), evaluation ~90 min (3-16 min per task: an
+# unsolved episode runs LeRobot's 500-step limit); under 3 h in all. Expected result: SubgoalVLA about 54 %
 # over MT10 (one training seed): drawers, window-close and door-open solved, grasping tasks and reach not.
 # The first recipe (MW_EPISODES=15 MW_ACTION_NOISE=0 MW_STEPS=2000 MW_RECIPE_FLAGS=) scored 41 %.
 # MW_POLICY / MW_TASKS / MW_EPISODES / MW_ACTION_NOISE / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the
