@@ -16,9 +16,9 @@
 # The first recipe (MW_EPISODES=15 MW_ACTION_NOISE=0 MW_STEPS=2000 MW_RECIPE_FLAGS=) scored 41 %.
 # MW_POLICY / MW_TASKS / MW_EPISODES / MW_ACTION_NOISE / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the
 # run; MW_RECIPE_FLAGS sets the SubgoalVLA flags added to laptop's (default: CALVIN's recipe-2 pixels, 4x
-# laptop's at the same 64 image tokens, and n_action_steps=4) and MW_EVAL_FLAGS lerobot-eval flags to every
-# task's evaluation. Two policies may share MW_DIR (the data stages are shared; start the second once the first
-# has its data).
+# laptop's at the same 64 image tokens, and n_action_steps=4), MW_TRACE_FLAGS extra subgoalvla-add-traces flags
+# (e.g. "--history-length 1") and MW_EVAL_FLAGS lerobot-eval flags to every task's evaluation. Two policies may
+# share MW_DIR (the data stages are shared; start the second once the first has its data).
 # MW_CHECKPOINT=<pretrained_model folder> skips stages 1-3 and evaluates that policy (a kept study run continues
 # its evaluation this way: benchmarks/study/runs/).
 # Every stage resumes or is skipped when its output is there, so an interrupted run continues.
@@ -44,6 +44,7 @@ OUT="${MW_DIR:-outputs/metaworld}"
 # Extra SubgoalVLA flags on top of laptop's (set MW_RECIPE_FLAGS= for the plain laptop preset).
 read -r -a RECIPE_FLAGS <<< \
     "${MW_RECIPE_FLAGS-"--policy.backbone.image_size=160 --policy.backbone.patch_size=20 --policy.n_action_steps=4"}"
+read -r -a TRACE_FLAGS <<< "${MW_TRACE_FLAGS:-}"    # extra subgoalvla-add-traces flags (e.g. --history-length 1)
 read -r -a EVAL_FLAGS <<< "${MW_EVAL_FLAGS:-}"      # extra lerobot-eval flags (e.g. --policy.n_action_steps=4)
 REPO=local/metaworld
 mkdir -p "$OUT"
@@ -72,7 +73,7 @@ else
 
     stage "2/5 add state history and subgoal traces -> $OUT/dataset"
     [ -d "$OUT/dataset" ] || subgoalvla-add-traces --repo-id "$REPO" --root "$OUT/raw" --output-root "$OUT/dataset" \
-        --trace-start 14 --stride 1
+        --trace-start 14 --stride 1 "${TRACE_FLAGS[@]}"
 
     CKPT="$RUN/train/checkpoints/last/pretrained_model"
     COMMON_TRAIN_FLAGS=(--policy.push_to_hub=false --policy.device=cpu --dataset.repo_id="$REPO"
