@@ -10,17 +10,12 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
-
-STUDY = Path(__file__).resolve().parents[1] / "benchmarks" / "study"
+from helpers.study import study_module
 
 
 @pytest.fixture
 def failure_frames(monkeypatch: pytest.MonkeyPatch):
-    monkeypatch.syspath_prepend(str(STUDY))
-    import failure_frames as module
-
-    yield module
-    sys.modules.pop("failure_frames", None)
+    yield from study_module(monkeypatch, "failure_frames")
 
 
 def _write_video(path: Path, num_frames: int) -> None:

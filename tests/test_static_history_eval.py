@@ -2,24 +2,16 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
 import torch
+from helpers.study import study_module
 
 from lerobot_subgoalvla.policies.subgoalvla.state_history import StateHistoryBuffer
-
-STUDY = Path(__file__).resolve().parents[1] / "benchmarks" / "study"
 
 
 @pytest.fixture
 def probe(monkeypatch: pytest.MonkeyPatch):
-    monkeypatch.syspath_prepend(str(STUDY))
-    import static_history_eval
-
-    yield static_history_eval
-    sys.modules.pop("static_history_eval", None)
+    yield from study_module(monkeypatch, "static_history_eval")
 
 
 def test_the_history_is_the_newest_state_repeated(probe, monkeypatch: pytest.MonkeyPatch) -> None:
