@@ -38,7 +38,10 @@ def _write_eval(eval_dir: Path, task: str, successes: list[bool], recorded_root:
         _write_video(eval_dir / task / relative, num_frames=12)
         videos.append(f"{recorded_root}/{task}/{relative}")
     metrics = {"successes": successes, "video_paths": videos}
-    info = {"per_task": [{"task_group": task, "task_id": 0, "metrics": metrics}], "overall": {}}
+    info = {
+        "per_task": [{"task_group": task, "task_id": 0, "metrics": metrics}],
+        "overall": {"video_paths": videos},
+    }
     (eval_dir / task / "eval_info.json").write_text(json.dumps(info))
 
 

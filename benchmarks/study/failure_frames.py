@@ -62,10 +62,12 @@ def failed_episodes(eval_dir: Path, per_task: int, tasks: list[str] | None = Non
         raise SystemExit(
             f"{eval_dir}: no <task>/eval_info.json; pass the eval folder of a finished lerobot-eval run"
         )
+    from lerobot_subgoalvla.demo_report import episode_successes
+
     by_task = []
     for info_path in infos:
-        metrics = json.loads(info_path.read_text())["per_task"][0]["metrics"]
-        successes, videos = metrics["successes"], metrics["video_paths"]
+        info = json.loads(info_path.read_text())
+        successes, videos = episode_successes(info), info["overall"]["video_paths"]
         failed = [episode for episode, success in enumerate(successes) if not success][:per_task]
         episodes = [
             FailedEpisode(info_path.parent.name, i, _resolve_video(videos[i], info_path.parent))
@@ -93,12 +95,14 @@ def video_frames(video: Path, count: int) -> tuple[list[int], list[np.ndarray]]:
 
 
 def plot(episodes: list[FailedEpisode], frames: int, output: Path) -> None:
-    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from lerobot_subgoalvla.atomic_files import atomic_write
 
-    fig, axes = plt.subplots(len(episodes), frames, figsize=(2 * frames, 2.2 * len(episodes)), squeeze=False)
+    fig = Figure(figsize=(2 * frames, 2.2 * len(episodes)), layout="tight")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(len(episodes), frames, squeeze=False)
     for row, episode in zip(axes, episodes, strict=True):
         indices, images = video_frames(episode.video, frames)
         for column, ax in enumerate(row):
@@ -106,12 +110,7 @@ def plot(episodes: list[FailedEpisode], frames: int, output: Path) -> None:
             if column < len(images):
                 ax.imshow(images[column])
                 ax.set_title(f"{episode.task} ep {episode.episode}: frame {indices[column]}", fontsize=6)
-    fig.tight_layout()
-    output.parent.mkdir(parents=True, exist_ok=True)
-    partial = output.with_suffix(".partial.png")
-    fig.savefig(partial, dpi=110)
-    plt.close(fig)
-    partial.replace(output)
+    atomic_write(output, lambda handle: fig.savefig(handle, format="png", dpi=110))
 
 
 def main() -> None:
