@@ -4,22 +4,15 @@ record says where it came from, and a finished scripts/*.sh run is recorded with
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
-
-STUDY = Path(__file__).resolve().parents[1] / "benchmarks" / "study"
+from helpers.study import STUDY, study_module
 
 
 @pytest.fixture
 def common(monkeypatch: pytest.MonkeyPatch):
-    monkeypatch.syspath_prepend(str(STUDY))
-    import common as study_common
-
-    yield study_common
-    for module in ("common", "records", "import_run"):
-        sys.modules.pop(module, None)
+    yield from study_module(monkeypatch, "common")
 
 
 def _record(task: str, successes: int, episodes: int, samples: int = 80000, **extra) -> dict:

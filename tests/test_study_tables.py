@@ -3,22 +3,13 @@ one-seed rows show each task's Wilson interval, and --compare names each run's e
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
-
-STUDY = Path(__file__).resolve().parents[1] / "benchmarks" / "study"
+from helpers.study import study_module
 
 
 @pytest.fixture
 def tables(monkeypatch: pytest.MonkeyPatch):
-    monkeypatch.syspath_prepend(str(STUDY))
-    import tables as study_tables
-
-    yield study_tables
-    for module in ("tables", "common", "records"):
-        sys.modules.pop(module, None)
+    yield from study_module(monkeypatch, "tables")
 
 
 def _run(
