@@ -215,10 +215,7 @@ def _fake_run(run: Path, tasks: dict[str, list[bool]], chains: int = 0) -> None:
         _write_chains(run / "eval" / "lh_mtlc" / "results.jsonl", range(chains), completed=2)
 
 
-def _dataset(root: Path, episodes: int = 20, frames: int = 1679) -> Path:
-    (root / "meta").mkdir(parents=True)
-    (root / "meta" / "info.json").write_text(json.dumps({"total_episodes": episodes, "total_frames": frames}))
-    return root
+_DATA_SIZE = {"train_episodes": 20, "train_frames": 1679}
 
 
 def test_a_finished_run_is_recorded_with_its_commit_commands_and_counts(common, tmp_path: Path) -> None:
@@ -231,7 +228,7 @@ def test_a_finished_run_is_recorded_with_its_commit_commands_and_counts(common, 
         "method": "subgoalvla", "setting": "metaworld_mt10", "scene": "metaworld", "commit": "abc1234",
         "code_era": "06900d6", "data_command": "record", "train_command": "train", "eval_command": "eval",
     }  # fmt: skip
-    records = import_run.records_from_run(run, _dataset(tmp_path / "dataset"), provenance)
+    records = import_run.records_from_run(run, _DATA_SIZE, provenance)
     by_task = {r["task"]: r for r in records}
     assert sorted(by_task) == ["push-v3", "reach-v3"]
     assert (by_task["reach-v3"]["successes"], by_task["reach-v3"]["episodes"]) == (9, 10)
@@ -256,7 +253,7 @@ def test_a_finished_calvin_run_adds_its_chain_record(common, tmp_path: Path) -> 
     provenance = dict.fromkeys(study_records.PROVENANCE_KEYS, "x") | {
         "method": "subgoalvla", "setting": "multi_task", "scene": "procedural",
     }  # fmt: skip
-    records = import_run.records_from_run(run, _dataset(tmp_path / "dataset"), provenance)
+    records = import_run.records_from_run(run, _DATA_SIZE, provenance)
     chains = next(r for r in records if r["task"] == "lh_mtlc")
     assert (chains["setting"], chains["episodes"], chains["avg_len"]) == ("lh_mtlc", 4, 2.0)
     assert chains["commit"] == "x" and chains["train_command"] == "x"
@@ -270,4 +267,39 @@ def test_a_run_that_never_logged_a_step_is_refused(common, tmp_path: Path) -> No
     _fake_run(run, {"reach-v3": [True]})
     (run / "train.log").write_text("Training:   0%|          | 0/100\n")
     with pytest.raises(SystemExit, match="no lerobot-train step lines"):
-        import_run.records_from_run(run, _dataset(tmp_path / "dataset"), {})
+        import_run.records_from_run(run, _DATA_SIZE, {})
+
+
+def test_a_kept_run_is_recorded_from_its_pretrained_model_folder(common, tmp_path: Path) -> None:
+    import import_run
+
+    run = tmp_path / "kept"
+    _fake_run(run, {"reach-v3": [True, False]})
+    (run / "train").rename(tmp_path / "moved")  # benchmarks/study/runs/ keeps pretrained_model/ at the top
+    (tmp_path / "moved" / "checkpoints" / "last" / "pretrained_model").rename(run / "pretrained_model")
+    (record,) = import_run.records_from_run(run, _DATA_SIZE, {})
+    assert (record["seed"], record["train_samples"], record["successes"]) == (3, 800, 1)
+    (run / "pretrained_model" / "train_config.json").unlink()
+    with pytest.raises(SystemExit, match="train_config.json is missing"):
+        import_run.records_from_run(run, _DATA_SIZE, {})
+
+
+def test_the_data_size_comes_from_a_run_on_the_same_data(common) -> None:
+    import import_run
+
+    def stored(method: str, episodes: int, frames: int, setting: str = "metaworld_mt10") -> dict:
+        return {"method": method, "setting": setting, "train_episodes": episodes, "train_frames": frames}
+
+    records = [
+        stored("a", 300, 23369),
+        stored("a", 300, 23369),
+        stored("a", 9, 9, "multi_task"),
+        stored("b", 1, 2),
+    ]
+    assert import_run.dataset_size_of("a", "metaworld_mt10", records) == {
+        "train_episodes": 300, "train_frames": 23369,
+    }  # fmt: skip
+    with pytest.raises(SystemExit, match="--dataset-of c: none among its metaworld_mt10 records"):
+        import_run.dataset_size_of("c", "metaworld_mt10", records)
+    with pytest.raises(SystemExit, match="2 different sizes"):
+        import_run.dataset_size_of("a", "metaworld_mt10", [*records, stored("a", 150, 11343)])

@@ -102,3 +102,17 @@ def test_comparison_columns_name_their_code_era(tables) -> None:
     assert lines[-1] == ["code era", "pre-b6dfa55", "b6dfa55"]
     with pytest.raises(SystemExit, match="no multi_task records of subgoalvla, seed 5"):
         tables.comparison_lines(records, ["subgoalvla:5"])
+
+
+def test_a_run_missing_tasks_says_how_many_its_mean_covers(tables) -> None:
+    records = [
+        {**r, "setting": "metaworld_mt10"}
+        for r in [
+            *_run("subgoalvla", 0, {"reach-v3": 9, "push-v3": 0, "door-open-v3": 20}),
+            *_run("multi_task_dit", 0, {"reach-v3": 6}),  # its evaluation still running
+        ]
+    ]
+    lines = tables.table_lines(records, "metaworld_mt10")
+    assert _row(lines, method="multi_task_dit")["mean % (sd, n)"] == "30.0 (n=1) over 1 of 3 tasks"
+    assert _row(lines, method="multi_task_dit")["push-v3"] == ""
+    assert _row(lines, method="subgoalvla")["mean % (sd, n)"] == "48.3 (n=1)"

@@ -2,8 +2,10 @@
 file, with the commit and the exact commands that made it, so the study does not train such a run twice.
 
 A run folder holds ``train.log``, ``train/checkpoints/last/pretrained_model/train_config.json`` (steps, batch
-size and seed are read from it) and ``eval/<task>/eval_info.json`` (plus ``eval/lh_mtlc/results.jsonl`` for
-CALVIN's chains). One record per evaluated task.
+size and seed are read from it; a run kept in ``benchmarks/study/runs/`` has it in ``pretrained_model/``) and
+``eval/<task>/eval_info.json`` (plus ``eval/lh_mtlc/results.jsonl`` for CALVIN's chains). One record per
+evaluated task. The data's size comes from the dataset (``--dataset``) or, where it is no longer on this
+machine, from the records of a run on the same data (``--dataset-of METHOD``).
 
 Usage::
 
@@ -19,7 +21,7 @@ import json
 from pathlib import Path
 
 from common import LH_MTLC, dataset_size, machine
-from records import chain_record_fields, code_era, eval_time_fields, store_records
+from records import chain_record_fields, code_era, eval_time_fields, load_records, store_records
 
 SETTINGS = ("multi_task", "metaworld_mt10")
 
@@ -31,24 +33,52 @@ def _eval_seconds(eval_dir: Path, task: str) -> float | None:
     return None if seconds is None else float(seconds)
 
 
-def records_from_run(run_dir: Path, dataset: Path, provenance: dict) -> list[dict]:
+#: Where a run folder keeps the checkpoint it was evaluated with: scripts/*.sh's layout, then a kept run's.
+CHECKPOINT_FOLDERS = (Path("train") / "checkpoints" / "last" / "pretrained_model", Path("pretrained_model"))
+
+
+def _train_config(run_dir: Path) -> dict:
+    for folder in CHECKPOINT_FOLDERS:
+        path = run_dir / folder / "train_config.json"
+        if path.is_file():
+            return json.loads(path.read_text())
+    raise SystemExit(
+        f"{run_dir / CHECKPOINT_FOLDERS[0] / 'train_config.json'} is missing; pass the folder of a run "
+        "scripts/*.sh trained or one kept in benchmarks/study/runs/"
+    )
+
+
+def dataset_size_of(method: str, setting: str, stored: list[dict]) -> dict[str, int]:
+    """``train_episodes`` and ``train_frames`` of the ``stored`` records of ``method`` in ``setting``."""
+    sizes = {
+        (r["train_episodes"], r["train_frames"])
+        for r in stored
+        if r["method"] == method and r["setting"] == setting and "train_frames" in r
+    }
+    if len(sizes) != 1:
+        found = "none" if not sizes else f"{len(sizes)} different sizes"
+        raise SystemExit(
+            f"--dataset-of {method}: {found} among its {setting} records; pass --dataset instead"
+        )
+    episodes, frames = sizes.pop()
+    return {"train_episodes": episodes, "train_frames": frames}
+
+
+def records_from_run(run_dir: Path, data_size: dict[str, int], provenance: dict) -> list[dict]:
     """One record per task evaluated in ``run_dir`` (and one for its chains), each carrying ``provenance``
-    (method, setting, scene, commit and the commands)."""
+    (method, setting, scene, commit and the commands) and ``data_size`` (``dataset_size``'s fields)."""
     from lerobot_subgoalvla.demo_report import parse_train_log, read_task_results, train_wall_seconds
 
     log = parse_train_log(run_dir / "train.log")
     if not log:
         raise SystemExit(f"{run_dir / 'train.log'} has no lerobot-train step lines; is the run trained?")
-    config_path = run_dir / "train" / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
-    if not config_path.is_file():
-        raise SystemExit(f"{config_path} is missing; pass the folder of a run scripts/*.sh trained")
-    config = json.loads(config_path.read_text())
+    config = _train_config(run_dir)
     seconds = train_wall_seconds(run_dir / "train.log")
     training = {
         **provenance,
         "seed": config["seed"],
         "train_samples": config["steps"] * config["batch_size"],
-        **dataset_size(dataset),
+        **data_size,
         "train_seconds": None if seconds is None else round(seconds, 1),
         "samples_per_s": log[-1].get("smp/s"),
         "machine": machine(),
@@ -75,7 +105,14 @@ def records_from_run(run_dir: Path, dataset: Path, provenance: dict) -> list[dic
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path, help="the run's folder (train.log, train/, eval/)")
-    parser.add_argument("--dataset", type=Path, required=True, help="the LeRobotDataset root it trained on")
+    data = parser.add_mutually_exclusive_group(required=True)
+    data.add_argument("--dataset", type=Path, help="the LeRobotDataset root it trained on")
+    data.add_argument(
+        "--dataset-of",
+        metavar="METHOD",
+        help="take the data's size from METHOD's records in --setting (a run on the same data, whose "
+        "dataset is no longer on this machine)",
+    )
     parser.add_argument("--method", required=True, help="the record's method name, e.g. subgoalvla")
     parser.add_argument("--setting", choices=SETTINGS, required=True, help="the table the records belong to")
     parser.add_argument("--scene", required=True, help="procedural | calvin_D | metaworld")
@@ -86,10 +123,15 @@ def main() -> None:
         "--note", default=None, help="what a reader must know about the run (its provenance note)"
     )
     args = parser.parse_args()
-    if not (args.dataset / "meta" / "info.json").is_file():
+    if args.dataset is not None and not (args.dataset / "meta" / "info.json").is_file():
         raise SystemExit(
             f"--dataset {args.dataset}: no meta/info.json; pass the LeRobotDataset's root folder"
         )
+    data_size = (
+        dataset_size(args.dataset)
+        if args.dataset is not None
+        else dataset_size_of(args.dataset_of, args.setting, load_records())
+    )
     provenance = {
         "method": args.method,
         "setting": args.setting,
@@ -101,7 +143,7 @@ def main() -> None:
         "eval_command": args.eval_command,
         **({"provenance": args.note} if args.note else {}),
     }
-    records = records_from_run(args.run_dir, args.dataset, provenance)
+    records = records_from_run(args.run_dir, data_size, provenance)
     store_records(records)  # replaces the records of the same run (e.g. one evaluated again)
     for r in records:
         print(f"{r['method']} {r['setting']:<14} {r['task']:<24} {r['successes']}/{r['episodes']}")

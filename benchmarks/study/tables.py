@@ -142,8 +142,11 @@ def table_lines(records: list[dict], setting: str) -> list[list[str]]:
         cells = [_cell(s["per_task"].get(t), setting, interval) for t in tasks]
         span = "-" if s["range"] is None else f"{s['range'][0]:{digits}}-{s['range'][1]:{digits}}"
         minutes = None if s["train_seconds"] is None else s["train_seconds"] / 60
+        score_text = spread_text(s, digits)
+        if len(s["per_task"]) < len(tasks):  # a run still being evaluated: its mean is not the table's
+            score_text += f" over {len(s['per_task'])} of {len(tasks)} tasks"
         lines.append([method, str(samples), str(frames or "-"), era, ",".join(map(str, s["seeds"])), *cells,
-                      spread_text(s, digits), span, _fmt(minutes, ".1f"), _fmt(s["samples_per_s"], ".0f"),
+                      score_text, span, _fmt(minutes, ".1f"), _fmt(s["samples_per_s"], ".0f"),
                       _fmt(s["eval_s_per_episode"], ".1f")])  # fmt: skip
     return lines
 
