@@ -25,6 +25,7 @@ import os
 import re
 import sys
 from collections.abc import Sequence
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -73,16 +74,23 @@ def parse_train_log(path: Path) -> list[dict[str, float]]:
 
 
 _TQDM_ELAPSED = re.compile(r"Training: *100%\|[^|]*\| *(\d+)/\d+ \[(?:(\d+):)?(\d+):(\d+)<")
+_INFO_TIME = re.compile(r"^INFO (\d{4}-\d\d-\d\d \d\d:\d\d:\d\d) ", re.MULTILINE)
+_STEP_LINE = re.compile(r" step:\d")
 
 
 def train_wall_seconds(path: Path) -> float | None:
-    """Wall time of the finished training from LeRobot's progress bar (``Training: 100%|...| N/N
-    [MM:SS<``)."""
-    matches = _TQDM_ELAPSED.findall(Path(path).read_text(errors="replace"))
-    if not matches:
+    """Wall time of the finished training: LeRobot's progress bar (``Training: 100%|...| N/N [MM:SS<``) or,
+    in a log kept without it (its ``INFO`` lines only), the time from its first line to its last step line."""
+    text = Path(path).read_text(errors="replace")
+    matches = _TQDM_ELAPSED.findall(text)
+    if matches:
+        _, hours, minutes, seconds = matches[-1]
+        return 3600 * int(hours or 0) + 60 * int(minutes) + int(seconds)
+    stamps = _INFO_TIME.findall(text)
+    steps = _INFO_TIME.findall("\n".join(line for line in text.splitlines() if _STEP_LINE.search(line)))
+    if not stamps or not steps:
         return None
-    _, hours, minutes, seconds = matches[-1]
-    return 3600 * int(hours or 0) + 60 * int(minutes) + int(seconds)
+    return (datetime.fromisoformat(steps[-1]) - datetime.fromisoformat(stamps[0])).total_seconds()
 
 
 def wilson_interval(successes: int, total: int, z: float = 1.96) -> tuple[float, float]:

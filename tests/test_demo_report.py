@@ -88,3 +88,16 @@ def test_cli_usage_errors_are_one_line_not_argparse_usage(tmp_path: Path, caplog
     with pytest.raises(SystemExit) as exit_info:
         demo_report.main(["--output-dir", str(tmp_path / "out")])  # --eval-dir missing
     assert exit_info.value.code == 1 and "the following arguments are required: --eval-dir" in caplog.text
+
+
+def test_training_time_of_a_log_kept_without_its_progress_bar(tmp_path: Path) -> None:
+    kept = tmp_path / "train.log"  # benchmarks/study/runs/ keep the INFO lines only
+    kept.write_text(
+        "INFO 2026-12-06 02:54:06 ot_train.py:272 {'batch_size': 32,\n 'steps': 6000}\n"
+        "INFO 2026-12-06 02:56:08 ot_train.py:641 step:50 smpl:2K loss:0.338 smp/s:13\n"
+        "INFO 2026-12-06 05:17:44 ot_train.py:641 step:6K smpl:192K loss:0.026 smp/s:17\n"
+        "INFO 2026-12-06 05:17:50 ot_train.py:700 End of training\n"
+    )
+    assert demo_report.train_wall_seconds(kept) == 2 * 3600 + 23 * 60 + 38  # first line to last step line
+    kept.write_text("INFO 2026-12-06 02:54:06 ot_train.py:298 Creating dataset\n")
+    assert demo_report.train_wall_seconds(kept) is None  # never trained a step
