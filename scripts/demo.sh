@@ -40,7 +40,8 @@ case "${DEMO_PROFILE:-cpu}" in
     # cpu: nothing is downloaded (random backbone); gpu: the small preset fetches its pretrained VLM once
     cpu) PRESET=laptop; TASKS=240; STEPS=2500; BATCH=32; EPISODES=10; CHAINS=20; CHAIN_START=0; DEVICE=cpu
          TRAIN_TASKS=fixtures; FIXTURE_WEIGHT=1; RECIPE_FLAGS=()
-         PRECISION=no; export HF_HUB_OFFLINE=1 ;;
+         PRECISION=no; export HF_HUB_OFFLINE=1
+         EXPECT="about 45 min on 2 idle cores; about four in five fixture-task episodes succeed, average length below 1" ;;
     # all34, gpu: chains 100-199; chains 0-99 informed the 34-task recipe (the hand-over analysis, docs/RESULTS.md)
     # all34 (recipe 2, docs/RESULTS.md): block tasks drawn twice as often as fixtures after a segment's first
     # task (the first recipe gave them a median of 12 windows to the fixtures' 50), and 160 px cut into 20 px
@@ -49,11 +50,13 @@ case "${DEMO_PROFILE:-cpu}" in
     all34) PRESET=laptop; TASKS=900; STEPS=16000; BATCH=32; EPISODES=10; CHAINS=100; CHAIN_START=100; DEVICE=cpu
          TRAIN_TASKS=all; FIXTURE_WEIGHT=0.5
          RECIPE_FLAGS=(--policy.backbone.image_size=160 --policy.backbone.patch_size=20)
-         PRECISION=no; export HF_HUB_OFFLINE=1 ;;
+         PRECISION=no; export HF_HUB_OFFLINE=1
+         EXPECT="about 2 h 50 min on 2 idle cores (longer on slower ones); average length about 1.0 on the 100 chains, single tasks about 41 %" ;;
     # the small preset trains in bf16 mixed precision (its dtype; LeRobot after 0.6.1 also needs the flag)
     gpu) PRESET=small; TASKS=2400; STEPS=30000; BATCH=32; EPISODES=20; CHAINS=100; CHAIN_START=100; DEVICE=cuda
          TRAIN_TASKS=all; FIXTURE_WEIGHT=1; RECIPE_FLAGS=()
-         PRECISION=bf16 ;;
+         PRECISION=bf16
+         EXPECT="not yet measured on a GPU (docs/RESULTS.md has every measured run)" ;;
     *) echo "demo.sh: DEMO_PROFILE=${DEMO_PROFILE} is not valid; use cpu, all34 or gpu" >&2; exit 2 ;;
 esac
 # DEMO_RECIPE_FLAGS replaces the profile's extra SubgoalVLA flags (an ablation of the recipe; empty: plain laptop)
@@ -91,6 +94,10 @@ esac
 mkdir -p "$OUT"
 started=$(date +%s)
 stage() { echo "== [$(( ($(date +%s) - started) / 60 )) min] $*"; }
+# Time and result up front; they hold for the profile's defaults with SubgoalVLA (docs/RESULTS.md).
+if [ "$POLICY" = subgoalvla ] && [ -z "${DEMO_CHECKPOINT:-}" ]; then
+    stage "DEMO_PROFILE=${DEMO_PROFILE:-cpu}, expected: $EXPECT"
+fi
 
 TRAIN_LOG="$OUT/train.log"
 if [ -n "${DEMO_CHECKPOINT:-}" ]; then

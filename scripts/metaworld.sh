@@ -11,8 +11,10 @@
 # n_action_steps=4, 10 evaluation episodes per task on seed 1000 on (data seeds derive from --seed 0). Time on 2
 # CPU cores, nothing else running: generation ~32 min (rendering 480 px is most of it), training ~39 min
 # (multi_task_dit about 2x: it decodes two frames per sample), evaluation ~90 min (3-16 min per task: an
-# unsolved episode runs LeRobot's 500-step limit); under 3 h in all. Expected result: SubgoalVLA about 54 %
-# over MT10 (one training seed): drawers, window-close and door-open solved, grasping tasks and reach not.
+# unsolved episode runs LeRobot's 500-step limit); under 3 h in all. A slower 2-core machine took about twice
+# as long (generation 60 min, training at 37 samples/s instead of 82). Expected result: SubgoalVLA about 54 %
+# over MT10 (one training seed): drawers, window-close and door-open solved, grasping tasks and reach not;
+# multi_task_dit about 39 %.
 # The first recipe (MW_EPISODES=15 MW_ACTION_NOISE=0 MW_STEPS=2000 MW_RECIPE_FLAGS=) scored 41 %.
 # MW_POLICY / MW_TASKS / MW_EPISODES / MW_ACTION_NOISE / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the
 # run; MW_RECIPE_FLAGS sets the SubgoalVLA flags added to laptop's (default: CALVIN's recipe-2 pixels, 4x
@@ -56,6 +58,12 @@ case "$POLICY" in
 esac
 RUN="$OUT/$POLICY"
 stage() { echo "== [$(( ($(date +%s) - started) / 60 )) min] $*"; }
+# Time and result up front; they hold for the defaults (docs/RESULTS.md "Meta-World MT10").
+if [ -z "${MW_CHECKPOINT:-}" ]; then
+    stage "expected with the defaults on 2 CPU cores: 2.5-5 h (generation 30-60 min, training 40-90 min for" \
+        "SubgoalVLA and about 2x for multi_task_dit, evaluation 1.5-3 h: the spread is the machine's speed);" \
+        "about 54 % over MT10 for SubgoalVLA, 39 % for multi_task_dit"
+fi
 
 TRAIN_LOG="$RUN/train.log"
 if [ -n "${MW_CHECKPOINT:-}" ]; then
