@@ -7,17 +7,16 @@
 #   4. lerobot-eval of DEMO_CHAINS LH-MTLC chains (in parallel shards) and of every trained task (DEMO_EPISODES
 #      episodes each)
 #   5. the report: success per task, LH-1..5, loss curves, predicted subgoal traces beside the executed motion
-# What to expect with the defaults: about four in five fixture-task episodes succeed (see docs/RESULTS.md for the
-# measured figures and their spread); chains contain block tasks the cpu profile never trains, so the average
-# length stays below 1.
+# What to expect from each profile's defaults (time and result) is its EXPECT below, printed before the first
+# stage (docs/RESULTS.md has the measured figures and their spread); chains contain block tasks the cpu profile
+# never trains, which is why its average length stays below 1.
 # Every stage resumes or is skipped when its output is already there, so an interrupted demo continues.
 # DEMO_PROFILE=all34 is CALVIN's headline on a CPU (recipe 2): all 34 tasks with balanced segment starts and
 # block tasks favoured (900 attempts), 160 px images, 16000 steps, chains 100-199, then every task 10 episodes.
 # Measured on 2 idle cores (docs/RESULTS.md): generation 13 min, conversion 7 min, training 107 min, the 100
 # chains and then the 34 single tasks 39 min (about 2 h 50 min in all); resumable across sessions.
-# Expected: average length about 1.0 (1.03, one seed), single tasks 41 % (fixtures 96 %), most block tasks not
-# learned. DEMO_PROFILE=gpu scales everything up for a GPU box (small preset,
-# 10x data and steps over all 34 tasks, 100 chains); single sizes can be changed with DEMO_TASKS, DEMO_STEPS,
+# The fixtures are learned (96 %), most block tasks are not. DEMO_PROFILE=gpu scales everything up for a GPU
+# box (small preset, 10x data and steps over all 34 tasks, 100 chains); single sizes can be changed with DEMO_TASKS, DEMO_STEPS,
 # DEMO_EPISODES, DEMO_CHAINS, DEMO_CHAIN_START, DEMO_CHAIN_SHARDS (keep it when resuming), DEMO_WORKERS,
 # DEMO_DIR, the trained tasks with DEMO_TRAIN_TASKS=fixtures|all, and the profile's extra SubgoalVLA flags with
 # DEMO_RECIPE_FLAGS (set but empty: the plain laptop preset).

@@ -12,9 +12,8 @@
 # CPU cores, nothing else running: generation ~32 min (rendering 480 px is most of it), training ~39 min
 # (multi_task_dit about 2x: it decodes two frames per sample), evaluation ~90 min (3-16 min per task: an
 # unsolved episode runs LeRobot's 500-step limit); under 3 h in all. A slower 2-core machine took about twice
-# as long (generation 60 min, training at 37 samples/s instead of 82). Expected result: SubgoalVLA about 54 %
-# over MT10 (one training seed): drawers, window-close and door-open solved, grasping tasks and reach not;
-# multi_task_dit about 39 %.
+# as long (generation 60 min, training at 37 samples/s instead of 82). The expected result is printed before
+# stage 1; drawers, window-close and door-open are solved, the grasping tasks and reach are not.
 # The first recipe (MW_EPISODES=15 MW_ACTION_NOISE=0 MW_STEPS=2000 MW_RECIPE_FLAGS=) scored 41 %.
 # MW_POLICY / MW_TASKS / MW_EPISODES / MW_ACTION_NOISE / MW_STEPS / MW_EVAL_EPISODES / MW_WORKERS / MW_DIR set the
 # run; MW_RECIPE_FLAGS sets the SubgoalVLA flags added to laptop's (default: CALVIN's recipe-2 pixels, 4x
