@@ -29,6 +29,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/setup_venv.sh
 source scripts/train_stage.sh
+source scripts/metaworld_data.sh
 export MPLBACKEND=Agg MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE="${HF_HUB_OFFLINE:-1}"
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
 
@@ -37,6 +38,8 @@ MT10=(reach-v3 push-v3 pick-place-v3 door-open-v3 drawer-open-v3 drawer-close-v3
 read -r -a TASKS <<< "${MW_TASKS:-${MT10[*]}}"
 POLICY="${MW_POLICY:-subgoalvla}"
 EPISODES="${MW_EPISODES:-30}"            # expert episodes per task
+MORE_TASKS="${MW_MORE_TASKS:-}"          # comma-separated tasks given MW_MORE_EPISODES more episodes
+MORE_EPISODES="${MW_MORE_EPISODES:-70}"
 ACTION_NOISE="${MW_ACTION_NOISE:-0.1}"   # std of the noise added to the expert's executed actions (labels clean)
 STEPS="${MW_STEPS:-6000}"                # training steps (stage II for the last fifth)
 EVAL_EPISODES="${MW_EVAL_EPISODES:-10}"  # evaluation episodes per task
@@ -72,11 +75,9 @@ if [ -n "${MW_CHECKPOINT:-}" ]; then
     stage "1-3/5 skipped: evaluating MW_CHECKPOINT=$CKPT"
 else
     stage "1/5 record ${#TASKS[@]} tasks x $EPISODES expert episodes -> $OUT/raw"
-    if [ ! -f "$OUT/raw/meta/info.json" ]; then
-        subgoalvla-generate-metaworld --output-root "$OUT/raw" --repo-id "$REPO" \
-            --tasks "$(IFS=,; echo "${TASKS[*]}")" --episodes-per-task "$EPISODES" --action-noise "$ACTION_NOISE" \
-            --seed 0 --workers "$WORKERS"
-    fi
+    [ -z "$MORE_TASKS" ] || stage "   and $MORE_EPISODES more of $MORE_TASKS (seed 1), merged with LeRobot's lerobot-edit-dataset"
+    metaworld_episodes "$OUT" "$REPO" "$(IFS=,; echo "${TASKS[*]}")" "$EPISODES" "$ACTION_NOISE" "$WORKERS" \
+        "$MORE_TASKS" "$MORE_EPISODES"
 
     stage "2/5 add state history and subgoal traces -> $OUT/dataset"
     [ -d "$OUT/dataset" ] || subgoalvla-add-traces --repo-id "$REPO" --root "$OUT/raw" --output-root "$OUT/dataset" \

@@ -1,0 +1,68 @@
+"""The open-loop diagnostic of the study: its error is that of the executed actions against the recorded ones
+(padding past an episode's end left out), it runs on a trained checkpoint, and bad groups end in one line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+import torch
+from helpers.robot_datasets import make_robot_dataset_in_subprocess
+from helpers.study import study_module
+from helpers.tiny_training import train_tiny
+
+from lerobot_subgoalvla.contract.keys import ACTION_IS_PAD_KEY, ACTION_KEY
+from lerobot_subgoalvla.datasets_conversion.add_traces import add_traces
+
+
+@pytest.fixture
+def open_loop_error(monkeypatch: pytest.MonkeyPatch):
+    yield from study_module(monkeypatch, "open_loop_error")
+
+
+class OffsetPolicy:
+    """Predicts the recorded chunk moved by 0.3 along the first action dimension."""
+
+    config = SimpleNamespace(n_action_steps=3)
+
+    def predict_action_chunk(self, batch: dict) -> torch.Tensor:
+        chunk = batch[ACTION_KEY].clone()
+        chunk[..., 0] += 0.3
+        return chunk
+
+
+def test_the_error_is_of_the_executed_steps_and_skips_padding(open_loop_error):
+    actions = torch.zeros(2, 5, 2)
+    pad = torch.zeros(2, 5, dtype=torch.bool)
+    pad[1, 1:] = True  # the second frame is an episode's last: one real step
+    items = [{ACTION_KEY: actions[i], ACTION_IS_PAD_KEY: pad[i]} for i in range(2)]
+
+    def identity(x):
+        return x
+
+    chunk, first = open_loop_error.executed_errors(OffsetPolicy(), identity, identity, items, [0, 1], 4)
+    assert chunk == pytest.approx([0.3, 0.3])
+    assert first == pytest.approx([0.3, 0.3])
+
+
+def test_a_group_past_the_dataset_or_malformed_ends_in_one_line(open_loop_error, tmp_path: Path, caplog):
+    with pytest.raises(SystemExit) as stop:
+        open_loop_error.main(["--policy-path", "x", "--dataset-root", "y", "--group", "trained=5-2"])
+    assert stop.value.code == 1
+    assert "--group 'trained=5-2': write NAME=FIRST-LAST" in caplog.text
+
+
+def test_a_trained_checkpoint_prints_one_row_per_group(open_loop_error, tmp_path: Path, capsys):
+    make_robot_dataset_in_subprocess(tmp_path / "raw", {"observation.image": 24}, 2, 2, use_videos=False)
+    dataset = add_traces("local/robot", tmp_path / "raw", tmp_path / "traces")
+    checkpoint = train_tiny(dataset.root, "local/robot", tmp_path / "train")
+    argv = ["--policy-path", str(checkpoint), "--dataset-root", str(dataset.root), "--repo-id", "local/robot"]
+    assert open_loop_error.main([*argv, "--group", "first=0-0", "--group", "both=0-1", "--every", "6"]) == 0
+    out = capsys.readouterr().out  # after a line LeRobot prints while loading
+    rows = [line.split() for line in out[out.index("group ") :].splitlines()[1:]]
+    assert [(row[0], row[1], row[2]) for row in rows] == [("first", "1", "4"), ("both", "2", "8")]
+    assert all(float(value) >= 0 for row in rows for value in row[3:])
+
+    with pytest.raises(SystemExit):
+        open_loop_error.main([*argv, "--group", "late=1-2"])
