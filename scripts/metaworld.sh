@@ -20,6 +20,7 @@
 # laptop's at the same 64 image tokens, and n_action_steps=4), MW_TRACE_FLAGS extra subgoalvla-add-traces flags
 # (e.g. "--history-length 1") and MW_EVAL_FLAGS lerobot-eval flags to every task's evaluation. Two policies may
 # share MW_DIR (the data stages are shared; start the second once the first has its data).
+# MW_MORE_TASKS (comma-separated) get MW_MORE_EPISODES (70) more episodes each (scripts/metaworld_data.sh).
 # MW_CHECKPOINT=<pretrained_model folder> skips stages 1-3 and evaluates that policy (a kept study run continues
 # its evaluation this way: benchmarks/study/runs/).
 # Every stage resumes or is skipped when its output is there, so an interrupted run continues.
@@ -75,7 +76,7 @@ if [ -n "${MW_CHECKPOINT:-}" ]; then
     stage "1-3/5 skipped: evaluating MW_CHECKPOINT=$CKPT"
 else
     stage "1/5 record ${#TASKS[@]} tasks x $EPISODES expert episodes -> $OUT/raw"
-    [ -z "$MORE_TASKS" ] || stage "   and $MORE_EPISODES more of $MORE_TASKS (seed 1), merged with LeRobot's lerobot-edit-dataset"
+    [ -z "$MORE_TASKS" ] || stage "   and $MORE_EPISODES more of $MORE_TASKS (seed 1), merged by lerobot-edit-dataset"
     metaworld_episodes "$OUT" "$REPO" "$(IFS=,; echo "${TASKS[*]}")" "$EPISODES" "$ACTION_NOISE" "$WORKERS" \
         "$MORE_TASKS" "$MORE_EPISODES"
 
