@@ -17,9 +17,9 @@
 # chains and then the 34 single tasks 39 min (about 2 h 50 min in all); resumable across sessions.
 # The fixtures are learned (96 %), most block tasks are not. DEMO_PROFILE=gpu scales everything up for a GPU
 # box (small preset, 10x data and steps over all 34 tasks, 100 chains); single sizes can be changed with
-# DEMO_TASKS, DEMO_STEPS, DEMO_EPISODES, DEMO_CHAINS, DEMO_CHAIN_START, DEMO_CHAIN_SHARDS (keep it when resuming), DEMO_WORKERS,
-# DEMO_DIR, the trained tasks with DEMO_TRAIN_TASKS=fixtures|all, and the profile's extra SubgoalVLA flags with
-# DEMO_RECIPE_FLAGS (set but empty: the plain laptop preset).
+# DEMO_TASKS, DEMO_STEPS, DEMO_EPISODES, DEMO_CHAINS, DEMO_CHAIN_START, DEMO_CHAIN_SHARDS (keep it when
+# resuming), DEMO_WORKERS, DEMO_DIR, the trained tasks with DEMO_TRAIN_TASKS=fixtures|all, and the profile's
+# extra SubgoalVLA flags with DEMO_RECIPE_FLAGS (set but empty: the plain laptop preset).
 # DEMO_CHECKPOINT=<pretrained_model folder> skips stages 1-3 and evaluates that policy (a kept study run resumes
 # its evaluation this way: benchmarks/study/runs/); DEMO_EVAL_FLAGS adds lerobot-eval flags to every evaluation.
 # DEMO_POLICY=multi_task_dit trains LeRobot's baseline instead, with the study's flags and random CLIP towers of

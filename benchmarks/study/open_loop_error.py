@@ -85,19 +85,19 @@ def main(argv: list[str] | None = None) -> int:
     with user_errors(logger):
         args = _parse_args(argv)
         groups = [parse_group(text) for text in args.group]
-        from lerobot.datasets import LeRobotDataset, resolve_delta_timestamps
+        from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata, resolve_delta_timestamps
 
         policy, preprocessor, postprocessor = load_policy(args.policy_path)
         policy.eval()
-        meta_only = LeRobotDataset(args.repo_id, root=args.dataset_root, video_backend="pyav")
-        last = meta_only.meta.total_episodes - 1
+        meta = LeRobotDatasetMetadata(args.repo_id, root=args.dataset_root)
+        last = meta.total_episodes - 1
         for name, episodes in groups:
             if episodes[-1] > last:
                 raise ValueError(f"--group {name}: episode {episodes[-1]} is past the last one ({last})")
         dataset = LeRobotDataset(
             args.repo_id,
             root=args.dataset_root,
-            delta_timestamps=resolve_delta_timestamps(policy.config, meta_only.meta),
+            delta_timestamps=resolve_delta_timestamps(policy.config, meta),
             video_backend="pyav",
         )
         torch.manual_seed(args.seed)
