@@ -20,6 +20,8 @@
 # laptop's at the same 64 image tokens, and n_action_steps=4), MW_TRACE_FLAGS extra subgoalvla-add-traces flags
 # (e.g. "--history-length 1") and MW_EVAL_FLAGS lerobot-eval flags to every task's evaluation. Two policies may
 # share MW_DIR (the data stages are shared; start the second once the first has its data).
+# MW_EVAL_TASKS (default: the trained tasks) and MW_EVAL_SEED (the first evaluation seed, default 1000) choose
+# what stage 4 evaluates; another seed's results go to eval_seed<N>/ and report_seed<N>/ beside eval/ and report/.
 # MW_MORE_TASKS (comma-separated) get MW_MORE_EPISODES (70) more episodes each (scripts/metaworld_data.sh).
 # MW_CHECKPOINT=<pretrained_model folder> skips stages 1-3 and evaluates that policy (a kept study run continues
 # its evaluation this way: benchmarks/study/runs/).
@@ -31,6 +33,7 @@ cd "$(dirname "$0")/.."
 source scripts/setup_venv.sh
 source scripts/train_stage.sh
 source scripts/metaworld_data.sh
+source scripts/metaworld_eval.sh
 export MPLBACKEND=Agg MUJOCO_GL="${MUJOCO_GL:-egl}" HF_HUB_OFFLINE="${HF_HUB_OFFLINE:-1}"
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
 
@@ -44,6 +47,8 @@ MORE_EPISODES="${MW_MORE_EPISODES:-70}"
 ACTION_NOISE="${MW_ACTION_NOISE:-0.1}"   # std of the noise added to the expert's executed actions (labels clean)
 STEPS="${MW_STEPS:-6000}"                # training steps (stage II for the last fifth)
 EVAL_EPISODES="${MW_EVAL_EPISODES:-10}"  # evaluation episodes per task
+read -r -a EVAL_TASKS <<< "${MW_EVAL_TASKS:-${TASKS[*]}}"
+EVAL_SEED="${MW_EVAL_SEED:-1000}"        # seeds EVAL_SEED .. EVAL_SEED + MW_EVAL_EPISODES - 1 per task
 WORKERS="${MW_WORKERS:-2}"
 OUT="${MW_DIR:-outputs/metaworld}"
 # Extra SubgoalVLA flags on top of laptop's (set MW_RECIPE_FLAGS= for the plain laptop preset).
@@ -59,6 +64,8 @@ case "$POLICY" in
     *) echo "metaworld.sh: MW_POLICY=$POLICY is not a policy this command trains; use subgoalvla or multi_task_dit" >&2
        exit 2 ;;
 esac
+[[ "$EVAL_SEED" =~ ^[0-9]+$ ]] || { echo "metaworld.sh: MW_EVAL_SEED=$EVAL_SEED is not a whole number; give the" \
+    "first evaluation seed, e.g. MW_EVAL_SEED=2000" >&2; exit 2; }
 RUN="$OUT/$POLICY"
 stage() { echo "== [$(( ($(date +%s) - started) / 60 )) min] $*"; }
 # Time and result up front; they hold for the defaults (docs/RESULTS.md "Meta-World MT10").
@@ -103,28 +110,24 @@ else
     fi
 fi
 
-stage "4/5 evaluate ${#TASKS[@]} tasks x $EVAL_EPISODES episodes in LeRobot's Meta-World env -> $RUN/eval"
-mkdir -p "$RUN/eval"
-for task in "${TASKS[@]}"; do
-    if [ ! -f "$RUN/eval/$task/eval_info.json" ]; then
-        rm -rf "$RUN/eval/$task"
-        lerobot-eval --policy.path="$CKPT" --env.type=metaworld --env.task="$task" \
-            --eval.n_episodes="$EVAL_EPISODES" --eval.batch_size=2 --eval.use_async_envs=true \
-            --output_dir="$RUN/eval/$task" --seed=1000 "${EVAL_FLAGS[@]}" > "$RUN/eval/$task.log" 2>&1 \
-            || { tail -5 "$RUN/eval/$task.log" >&2; exit 1; }
-        python -c "import json,sys; o=json.load(open(sys.argv[1]))['overall']; print(f'   {sys.argv[2]}: {o[\"pc_success\"]:.0f} % of {o[\"n_episodes\"]} episodes')" \
-            "$RUN/eval/$task/eval_info.json" "$task"
-    fi
-done
+# Seed 1000 (the study's) keeps the folders it always had; another first seed gets its own.
+SUFFIX=""
+[ "$EVAL_SEED" = 1000 ] || SUFFIX="_seed$EVAL_SEED"
+EVAL_DIR="$RUN/eval$SUFFIX"
+REPORT_DIR="$RUN/report$SUFFIX"
+stage "4/5 evaluate ${#EVAL_TASKS[@]} tasks x $EVAL_EPISODES episodes from seed $EVAL_SEED in LeRobot's Meta-World" \
+    "env -> $EVAL_DIR"
+metaworld_evaluate "$CKPT" "$EVAL_DIR" "$EVAL_SEED" "$EVAL_EPISODES" "$(IFS=,; echo "${EVAL_TASKS[*]}")" \
+    "${EVAL_FLAGS[@]}"
 
-stage "5/5 report -> $RUN/report"
-mkdir -p "$RUN/report"
-if [ "$POLICY" = subgoalvla ] && [ ! -f "$RUN/report/trace_plot.png" ]; then
-    subgoalvla-plot-traces --policy-path "$CKPT" --env-type metaworld --task "${TASKS[0]}" --seed 1000 \
-        --output "$RUN/report/trace_plot.png"
+stage "5/5 report -> $REPORT_DIR"
+mkdir -p "$REPORT_DIR"
+if [ "$POLICY" = subgoalvla ] && [ ! -f "$REPORT_DIR/trace_plot.png" ]; then
+    subgoalvla-plot-traces --policy-path "$CKPT" --env-type metaworld --task "${EVAL_TASKS[0]}" \
+        --seed "$EVAL_SEED" --output "$REPORT_DIR/trace_plot.png"
 fi
 log_flag=()
 [ -f "$TRAIN_LOG" ] && log_flag=(--train-log "$TRAIN_LOG")
-subgoalvla-demo-report "${log_flag[@]}" --eval-dir "$RUN/eval" --output-dir "$RUN/report" \
-    --title "$POLICY on Meta-World (${#TASKS[@]} tasks, $EVAL_EPISODES episodes each)"
-stage "done: report $RUN/report/README.md"
+subgoalvla-demo-report "${log_flag[@]}" --eval-dir "$EVAL_DIR" --output-dir "$REPORT_DIR" \
+    --title "$POLICY on Meta-World (${#EVAL_TASKS[@]} tasks, $EVAL_EPISODES episodes each)"
+stage "done: report $REPORT_DIR/README.md"
