@@ -260,6 +260,18 @@ def test_a_finished_calvin_run_adds_its_chain_record(common, tmp_path: Path) -> 
     assert [study_records.missing_provenance(r) for r in records] == [[], []]
 
 
+def test_an_evaluation_on_other_seeds_is_recorded_from_its_own_folder(common, tmp_path: Path) -> None:
+    import import_run
+
+    run = tmp_path / "mt10" / "subgoalvla"
+    _fake_run(run, {"reach-v3": [True] * 10})
+    _write_eval(run / "eval_seed2000" / "reach-v3", [True, False, False])
+    provenance = {"method": "subgoalvla", "setting": "metaworld_mt10_heldout"}
+    (record,) = import_run.records_from_run(run, _DATA_SIZE, provenance, run / "eval_seed2000")
+    assert (record["setting"], record["successes"], record["episodes"]) == ("metaworld_mt10_heldout", 1, 3)
+    assert record["seed"] == 3  # the training seed, as for the run's other records
+
+
 def test_a_run_that_never_logged_a_step_is_refused(common, tmp_path: Path) -> None:
     import import_run
 

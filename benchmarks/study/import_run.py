@@ -4,8 +4,11 @@ file, with the commit and the exact commands that made it, so the study does not
 A run folder holds ``train.log``, ``train/checkpoints/last/pretrained_model/train_config.json`` (steps, batch
 size and seed are read from it; a run kept in ``benchmarks/study/runs/`` has it in ``pretrained_model/``) and
 ``eval/<task>/eval_info.json`` (plus ``eval/lh_mtlc/results.jsonl`` for CALVIN's chains). One record per
-evaluated task. The data's size comes from the dataset (``--dataset``) or, where it is no longer on this
-machine, from the records of a run on the same data (``--dataset-of METHOD``).
+evaluated task. An evaluation on other seeds (``scripts/metaworld.sh``'s ``eval_seed<N>/``) is recorded with
+``--eval-dir`` in its own setting (``metaworld_mt10_heldout``: seeds chosen after every recipe choice), so
+records of two seed ranges are never pooled or overwritten. The data's size comes from the dataset
+(``--dataset``) or, where it is no longer on this machine, from the records of a run on the same data
+(``--dataset-of METHOD``).
 
 Usage::
 
@@ -23,7 +26,7 @@ from pathlib import Path
 from common import LH_MTLC, dataset_size, machine
 from records import chain_record_fields, code_era, eval_time_fields, load_records, store_records
 
-SETTINGS = ("multi_task", "metaworld_mt10")
+SETTINGS = ("multi_task", "metaworld_mt10", "metaworld_mt10_heldout")
 
 
 def _eval_seconds(eval_dir: Path, task: str) -> float | None:
@@ -64,9 +67,12 @@ def dataset_size_of(method: str, setting: str, stored: list[dict]) -> dict[str, 
     return {"train_episodes": episodes, "train_frames": frames}
 
 
-def records_from_run(run_dir: Path, data_size: dict[str, int], provenance: dict) -> list[dict]:
-    """One record per task evaluated in ``run_dir`` (and one for its chains), each carrying ``provenance``
-    (method, setting, scene, commit and the commands) and ``data_size`` (``dataset_size``'s fields)."""
+def records_from_run(
+    run_dir: Path, data_size: dict[str, int], provenance: dict, eval_dir: Path | None = None
+) -> list[dict]:
+    """One record per task evaluated in ``eval_dir`` (default ``run_dir/eval``; and one for its chains), each
+    carrying ``provenance`` (method, setting, scene, commit and the commands) and ``data_size``
+    (``dataset_size``'s fields)."""
     from lerobot_subgoalvla.demo_report import parse_train_log, read_task_results, train_wall_seconds
 
     log = parse_train_log(run_dir / "train.log")
@@ -85,7 +91,7 @@ def records_from_run(run_dir: Path, data_size: dict[str, int], provenance: dict)
         # The study continues the evaluation of a recorded run from here (common.execute).
         "source": str(run_dir),
     }
-    eval_dir = run_dir / "eval"
+    eval_dir = run_dir / "eval" if eval_dir is None else eval_dir
     records = [
         {
             **training,
@@ -105,6 +111,12 @@ def records_from_run(run_dir: Path, data_size: dict[str, int], provenance: dict)
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_dir", type=Path, help="the run's folder (train.log, train/, eval/)")
+    parser.add_argument(
+        "--eval-dir",
+        type=Path,
+        default=None,
+        help="the evaluation to record (default: RUN_DIR/eval; e.g. RUN_DIR/eval_seed2000 for other seeds)",
+    )
     data = parser.add_mutually_exclusive_group(required=True)
     data.add_argument("--dataset", type=Path, help="the LeRobotDataset root it trained on")
     data.add_argument(
@@ -143,7 +155,9 @@ def main() -> None:
         "eval_command": args.eval_command,
         **({"provenance": args.note} if args.note else {}),
     }
-    records = records_from_run(args.run_dir, data_size, provenance)
+    if args.eval_dir is not None and not args.eval_dir.is_dir():
+        raise SystemExit(f"--eval-dir {args.eval_dir}: no such folder; pass the folder of the tasks' results")
+    records = records_from_run(args.run_dir, data_size, provenance, args.eval_dir)
     store_records(records)  # replaces the records of the same run (e.g. one evaluated again)
     for r in records:
         print(f"{r['method']} {r['setting']:<14} {r['task']:<24} {r['successes']}/{r['episodes']}")

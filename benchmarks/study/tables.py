@@ -31,9 +31,9 @@ from collections import defaultdict
 from common import FIXTURE_TASKS, LH_MTLC
 from records import load_records
 
-SETTINGS = ("single_task", "multi_task", LH_MTLC, "metaworld_mt10")
+SETTINGS = ("single_task", "multi_task", LH_MTLC, "metaworld_mt10", "metaworld_mt10_heldout")
 #: Settings whose one-seed rows show each task's 95 % Wilson interval beside its successes.
-INTERVAL_SETTINGS = frozenset({"metaworld_mt10"})
+INTERVAL_SETTINGS = frozenset({"metaworld_mt10", "metaworld_mt10_heldout"})
 COLUMNS = ("o_drawer", "c_drawer", "slider_l", "slider_r", "on_led", "off_led", "on_bulb", "off_bulb")
 SHORT = dict(zip(FIXTURE_TASKS, COLUMNS, strict=True))
 
