@@ -311,6 +311,8 @@ def test_the_data_size_comes_from_a_run_on_the_same_data(common) -> None:
     assert import_run.dataset_size_of("a", "metaworld_mt10", records) == {
         "train_episodes": 300, "train_frames": 23369,
     }  # fmt: skip
+    held_out = import_run.dataset_size_of("a", "metaworld_mt10_heldout", records)  # its runs, other seeds
+    assert held_out == {"train_episodes": 300, "train_frames": 23369}
     with pytest.raises(SystemExit, match="--dataset-of c: none among its metaworld_mt10 records"):
         import_run.dataset_size_of("c", "metaworld_mt10", records)
     with pytest.raises(SystemExit, match="2 different sizes"):

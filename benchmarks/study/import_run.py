@@ -27,6 +27,8 @@ from common import LH_MTLC, dataset_size, machine
 from records import chain_record_fields, code_era, eval_time_fields, load_records, store_records
 
 SETTINGS = ("multi_task", "metaworld_mt10", "metaworld_mt10_heldout")
+#: A setting whose runs are those of another one, evaluated again: its data sizes are that setting's.
+TRAINED_FOR = {"metaworld_mt10_heldout": "metaworld_mt10"}
 
 
 def _eval_seconds(eval_dir: Path, task: str) -> float | None:
@@ -52,11 +54,13 @@ def _train_config(run_dir: Path) -> dict:
 
 
 def dataset_size_of(method: str, setting: str, stored: list[dict]) -> dict[str, int]:
-    """``train_episodes`` and ``train_frames`` of the ``stored`` records of ``method`` in ``setting``."""
+    """``train_episodes`` and ``train_frames`` of the ``stored`` records of ``method`` in ``setting`` (or in
+    the setting it evaluates the runs of again: :data:`TRAINED_FOR`)."""
+    settings = {setting, TRAINED_FOR.get(setting, setting)}
     sizes = {
         (r["train_episodes"], r["train_frames"])
         for r in stored
-        if r["method"] == method and r["setting"] == setting and "train_frames" in r
+        if r["method"] == method and r["setting"] in settings and "train_frames" in r
     }
     if len(sizes) != 1:
         found = "none" if not sizes else f"{len(sizes)} different sizes"
