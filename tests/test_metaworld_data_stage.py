@@ -2,14 +2,12 @@
 generator and LeRobot's lerobot-edit-dataset on PATH: what each is called with, that more episodes of some
 tasks come from another seed and are merged, and that a failed merge leaves no training data behind."""
 
-import os
 import shutil
 import subprocess
 from pathlib import Path
 
 import pytest
-
-REPO = Path(__file__).resolve().parents[1]
+from helpers.stand_ins import calls_made, run_stage_function, stand_ins
 
 # Both record their arguments, one per line, and write the finished dataset a real run leaves
 # (`meta/info.json` under --output-root / --new_root); FAKE_FAIL=<name> makes that one exit 1 half-way.
@@ -32,29 +30,13 @@ pytestmark = pytest.mark.skipif(shutil.which("bash") is None, reason="bash is no
 
 @pytest.fixture
 def fake_env(tmp_path):
-    bin_dir, calls = tmp_path / "bin", tmp_path / "calls"
-    bin_dir.mkdir()
-    calls.mkdir()
-    for name in ("subgoalvla-generate-metaworld", "lerobot-edit-dataset"):
-        (bin_dir / name).write_text(FAKE)
-        (bin_dir / name).chmod(0o755)
-    return {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "FAKE_CALLS": str(calls)}, calls
+    names = ("subgoalvla-generate-metaworld", "lerobot-edit-dataset")
+    return stand_ins(tmp_path, dict.fromkeys(names, FAKE))
 
 
 def run_stage(env, out: Path, more_tasks: str, **extra_env: str) -> subprocess.CompletedProcess:
-    script = f'set -euo pipefail; source "{REPO}/scripts/metaworld_data.sh"; metaworld_episodes "$@"'
     args = [str(out), "me/mw", "reach-v3,push-v3", "30", "0.1", "2", more_tasks, "70"]
-    return subprocess.run(
-        ["bash", "-c", script, "stage", *args],
-        env={**env, **extra_env},
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-
-
-def calls_made(calls: Path) -> list[list[str]]:
-    return [p.read_text().split("\n")[:-1] for p in sorted(calls.iterdir(), key=lambda p: int(p.stem[5:]))]
+    return run_stage_function({**env, **extra_env}, "metaworld_data.sh", "metaworld_episodes", *args)
 
 
 def flag(call: list[str], name: str) -> str:

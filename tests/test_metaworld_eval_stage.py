@@ -3,15 +3,13 @@ LeRobot's lerobot-eval on PATH: the tasks it evaluates, in which order and from 
 that a failed evaluation stops the stage."""
 
 import json
-import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-
-REPO = Path(__file__).resolve().parents[1]
+from helpers.stand_ins import calls_made, run_stage_function, stand_ins
 
 # Records its arguments, one per line, and writes the eval_info.json a real run leaves under --output_dir;
 # FAKE_FAIL=<task> makes that task's evaluation exit 1 after writing a partial folder.
@@ -35,30 +33,15 @@ pytestmark = pytest.mark.skipif(shutil.which("bash") is None, reason="bash is no
 
 @pytest.fixture
 def fake_env(tmp_path):
-    bin_dir, calls = tmp_path / "bin", tmp_path / "calls"
-    bin_dir.mkdir()
-    calls.mkdir()
-    (bin_dir / "lerobot-eval").write_text(FAKE_EVAL)
-    (bin_dir / "lerobot-eval").chmod(0o755)
+    env, calls = stand_ins(tmp_path, {"lerobot-eval": FAKE_EVAL})
     # The stage prints each task's success with `python`; the interpreter running the tests is one.
-    (bin_dir / "python").symlink_to(sys.executable)
-    return {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "FAKE_CALLS": str(calls)}, calls
+    (tmp_path / "bin" / "python").symlink_to(sys.executable)
+    return env, calls
 
 
 def run_stage(env, eval_dir: Path, tasks: str, *flags: str, **extra_env: str) -> subprocess.CompletedProcess:
-    script = f'set -euo pipefail; source "{REPO}/scripts/metaworld_eval.sh"; metaworld_evaluate "$@"'
     args = ["/ckpt/pretrained_model", str(eval_dir), "2000", "10", tasks, *flags]
-    return subprocess.run(
-        ["bash", "-c", script, "stage", *args],
-        env={**env, **extra_env},
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-
-
-def calls_made(calls: Path) -> list[list[str]]:
-    return [p.read_text().split("\n")[:-1] for p in sorted(calls.iterdir(), key=lambda p: int(p.stem[5:]))]
+    return run_stage_function({**env, **extra_env}, "metaworld_eval.sh", "metaworld_evaluate", *args)
 
 
 def test_tasks_are_evaluated_in_order_from_the_seed_with_the_extra_flags(fake_env, tmp_path):

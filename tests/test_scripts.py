@@ -2,14 +2,12 @@
 the training stage (scripts/train_stage.sh: what it is called with, where its log goes, how it resumes or is
 skipped) and the sharded chain stage (scripts/chain_stage.sh: disjoint shards, joined, resumed per shard)."""
 
-import os
 import shutil
 import subprocess
 from pathlib import Path
 
 import pytest
-
-REPO = Path(__file__).resolve().parents[1]
+from helpers.stand_ins import REPO, calls_made, run_stage_function, stand_ins
 
 # Records its arguments, one per line, then behaves as asked by the environment: FAKE_FAIL=1 exits 1;
 # otherwise it writes the checkpoint a real run leaves (so a second call can resume from it).
@@ -29,35 +27,13 @@ fi
 pytestmark = pytest.mark.skipif(shutil.which("bash") is None, reason="bash is not installed")
 
 
-def stand_in(tmp_path: Path, name: str, script: str) -> tuple[dict, Path]:
-    """``name`` on PATH as ``script``; returns the environment to run with and the folder of its calls."""
-    bin_dir, calls = tmp_path / "bin", tmp_path / "calls"
-    bin_dir.mkdir()
-    calls.mkdir()
-    fake = bin_dir / name
-    fake.write_text(script)
-    fake.chmod(0o755)
-    return {**os.environ, "PATH": f"{bin_dir}:{os.environ['PATH']}", "FAKE_CALLS": str(calls)}, calls
-
-
 @pytest.fixture
 def fake_env(tmp_path):
-    return stand_in(tmp_path, "lerobot-train", FAKE_TRAIN)
+    return stand_ins(tmp_path, {"lerobot-train": FAKE_TRAIN})
 
 
 def run_stage(env, out: Path, log: Path, *flags: str) -> subprocess.CompletedProcess:
-    script = f'set -euo pipefail; source "{REPO}/scripts/train_stage.sh"; resumable_train "$@"'
-    return subprocess.run(
-        ["bash", "-c", script, "stage", str(out), str(log), *flags],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-
-
-def calls_made(calls: Path) -> list[list[str]]:
-    return [p.read_text().split("\n")[:-1] for p in sorted(calls.iterdir())]
+    return run_stage_function(env, "train_stage.sh", "resumable_train", str(out), str(log), *flags)
 
 
 def test_a_fresh_stage_logs_into_a_folder_that_does_not_exist_yet(fake_env, tmp_path):
@@ -119,17 +95,14 @@ done
 
 @pytest.fixture
 def fake_eval(tmp_path):
-    return stand_in(tmp_path, "lerobot-eval", FAKE_EVAL)
+    return stand_ins(tmp_path, {"lerobot-eval": FAKE_EVAL})
 
 
 def run_chains(
     env, eval_dir: Path, first: int, count: int, shards: int, *eval_flags: str
 ) -> subprocess.CompletedProcess:
-    script = f'set -euo pipefail; source "{REPO}/scripts/chain_stage.sh"; sharded_chains "$@"'
     args = ["ckpt", str(eval_dir), str(first), str(count), str(shards), *eval_flags]
-    return subprocess.run(
-        ["bash", "-c", script, "stage", *args], env=env, capture_output=True, text=True, timeout=60
-    )
+    return run_stage_function(env, "chain_stage.sh", "sharded_chains", *args)
 
 
 def chain_ids(path: Path) -> list[int]:
