@@ -50,6 +50,7 @@ from transformers.utils.constants import OPENAI_CLIP_MEAN, OPENAI_CLIP_STD
 
 from lerobot_subgoalvla.policies.subgoalvla.config_components import TinyLlavaDims
 from lerobot_subgoalvla.policies.subgoalvla.tokenizer import IMAGE_TOKEN, PAD_TOKEN, tiny_vocabulary
+from lerobot_subgoalvla.policies.subgoalvla.vision_stem import install_conv_stem
 
 _DTYPES = {"float32": torch.float32, "bfloat16": torch.bfloat16, "float16": torch.float16}
 
@@ -255,6 +256,8 @@ class VLMBackbone(nn.Module):
         torch_dtype: weight dtype, "float32" | "bfloat16" | "float16" (or a torch.dtype).
         vlm_config: with ``name_or_path=None``, build this architecture (random weights) instead of the tiny
             one; used to size the paper/small architectures on the meta device without downloading anything.
+        vision_stem: the tiny tower's patch embedding, "patch" (CLIP's) or "conv" (``vision_stem.ConvStem``);
+            None keeps the model's own (pretrained towers).
     """
 
     def __init__(
@@ -265,6 +268,7 @@ class VLMBackbone(nn.Module):
         tiny: TinyLlavaDims | None = None,
         torch_dtype: str | torch.dtype = "float32",
         vlm_config: PretrainedConfig | None = None,
+        vision_stem: str | None = None,
     ) -> None:
         super().__init__()
         if name_or_path is not None and (tiny is not None or vlm_config is not None):
@@ -275,6 +279,11 @@ class VLMBackbone(nn.Module):
         if name_or_path is None and vlm_config is None:
             vlm_config = build_tiny_llava_config(_required_tiny(tiny))
         self.vlm = _load_base_vlm(name_or_path, vlm_config, dtype)
+        if vision_stem == "conv":
+            if name_or_path is not None:
+                raise ValueError("VLMBackbone: vision_stem='conv' applies to a tiny tower only")
+            install_conv_stem(self.vlm.vision_tower, self.vlm.config.vision_config.patch_size)
+            self.vlm.vision_tower.to(dtype)
         for part in ("vision_tower", "multi_modal_projector", "language_model"):
             if not hasattr(self.vlm, part):
                 raise ValueError(f"{name_or_path!r} is not a LLaVA-style VLM: its base model lacks `{part}`")

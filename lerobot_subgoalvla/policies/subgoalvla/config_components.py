@@ -84,6 +84,9 @@ class BackboneConfig:
     image_size: int | None = None
     # tiny vision-encoder patch size (image_size must be a multiple of it).
     patch_size: int | None = None
+    # tiny vision-encoder patch embedding: `patch` (CLIP's one linear map per patch) or `conv` (stride-2 3x3
+    # convolutions, then one over the rest of the patch: Xiao et al. 2021; needs an even patch_size).
+    vision_stem: str | None = None
     # words of the tiny tokenizer; lerobot-train fills it from the training dataset's tasks and the
     # instructions its metadata lists, and it is saved with the checkpoint (leave unset).
     vocabulary: list[str] | None = None
@@ -98,6 +101,11 @@ class BackboneConfig:
     def tiny_architecture_fields(self) -> tuple[str, ...]:
         """Names of the fields that describe the tiny random LLaVA (None for pretrained backbones)."""
         return tuple(f.name for f in dataclasses.fields(TinyLlavaDims))
+
+    @property
+    def tiny_only_fields(self) -> tuple[str, ...]:
+        """Fields a pretrained backbone must leave unset: the tiny architecture and its patch embedding."""
+        return (*self.tiny_architecture_fields, "vision_stem")
 
     def tiny_dims(self) -> TinyLlavaDims | None:
         """The tiny LLaVA's dimensions; None for a pretrained backbone (``name_or_path`` set)."""
@@ -241,6 +249,7 @@ PRESET_VALUES: dict[str, dict[str, dict[str, Any]]] = {
             "vision_num_heads": 4,
             "image_size": 32,
             "patch_size": 8,
+            "vision_stem": "patch",
             "max_instruction_tokens": 32,
             "torch_dtype": "float32",
             "freeze_vision_tower": True,
@@ -275,6 +284,7 @@ PRESET_VALUES: dict[str, dict[str, dict[str, Any]]] = {
             "vision_num_heads": 4,
             "image_size": 80,
             "patch_size": 10,
+            "vision_stem": "patch",
             "max_instruction_tokens": 24,
             "torch_dtype": "float32",
             "freeze_vision_tower": False,

@@ -56,6 +56,7 @@ STAGES = ("stage1", "stage2")
 #: ``PRESET_VALUES[...]["recipe"]`` fills attributes of SubgoalVLAConfig itself (not of a nested dataclass).
 RECIPE = "recipe"
 TORCH_DTYPES = ("float32", "bfloat16", "float16")
+VISION_STEMS = ("patch", "conv")
 
 
 @PreTrainedConfig.register_subclass("subgoalvla")
@@ -189,7 +190,7 @@ class SubgoalVLAConfig(PreTrainedConfig, DatasetFitting):
             sub = self if attribute == RECIPE else getattr(self, attribute)
             for name, value in defaults.items():
                 # A user-chosen pretrained backbone brings its own architecture: never add tiny dimensions.
-                if attribute == "backbone" and pretrained and name in sub.tiny_architecture_fields:
+                if attribute == "backbone" and pretrained and name in sub.tiny_only_fields:
                     continue
                 if name == "name_or_path":
                     continue  # None is meaningful (tiny); filled below only when the preset is pretrained
@@ -269,6 +270,12 @@ class SubgoalVLAConfig(PreTrainedConfig, DatasetFitting):
                     f"--policy.backbone.image_size={bb.image_size} must be a multiple of "
                     f"--policy.backbone.patch_size={bb.patch_size}"
                 )
+            require_choice("backbone.vision_stem", bb.vision_stem, VISION_STEMS)
+            if bb.vision_stem == "conv" and bb.patch_size % 2 != 0:
+                raise ConfigError(
+                    f"--policy.backbone.vision_stem=conv needs an even --policy.backbone.patch_size, "
+                    f"got {bb.patch_size}"
+                )
             for prefix in ("text", "vision"):
                 hidden, heads = getattr(bb, f"{prefix}_hidden_size"), getattr(bb, f"{prefix}_num_heads")
                 if hidden % heads != 0:
@@ -282,7 +289,7 @@ class SubgoalVLAConfig(PreTrainedConfig, DatasetFitting):
                     f"(the tiny LLM has {bb.text_num_layers} layers); leave it unset for m // 2"
                 )
         else:
-            given = [name for name in bb.tiny_architecture_fields if getattr(bb, name) is not None]
+            given = [name for name in bb.tiny_only_fields if getattr(bb, name) is not None]
             if given:
                 raise ConfigError(
                     f"--policy.backbone.{given[0]} only applies to the tiny backbone (name_or_path unset); "

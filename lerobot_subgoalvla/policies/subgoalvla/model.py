@@ -108,7 +108,12 @@ class SubgoalVLAModel(nn.Module):
         bb = config.backbone
         if backbone is None:
             backbone = VLMBackbone(
-                bb.name_or_path, bb.layer, bb.freeze_vision_tower, bb.tiny_dims(), bb.torch_dtype
+                bb.name_or_path,
+                bb.layer,
+                bb.freeze_vision_tower,
+                bb.tiny_dims(),
+                bb.torch_dtype,
+                vision_stem=bb.vision_stem,
             )
         self.backbone = backbone
         self.camera_keys = config.image_features_in_order  # the views' left-to-right order is learned
