@@ -11,6 +11,8 @@ Usage::
 
     python benchmarks/train_throughput.py --dataset-root outputs/demo/dataset --repo-id local/calvin_demo
     python benchmarks/train_throughput.py ... --policies tiny laptop --threads 1 2 --workers 0 1 2
+    python benchmarks/train_throughput.py --dataset-root outputs/metaworld/dataset --repo-id local/metaworld \
+        --policies laptop160 laptop160_conv   # the vision stem's cost at Meta-World's recipe
 
 The dataset needs cameras of one shape for ``diffusion`` and ``multi_task_dit`` (LeRobot's requirement); they
 are skipped otherwise. ``multi_task_dit`` is configured as in the study (``study/multi_task.py``: a random
@@ -33,9 +35,22 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent / "study"))
 from lerobot_subgoalvla.demo_report import parse_train_log  # noqa: E402
 
+METAWORLD_RECIPE = [
+    "--policy.backbone.image_size=160",
+    "--policy.backbone.patch_size=20",
+    "--policy.n_action_steps=4",
+]
 POLICIES = {
     "tiny": ["--policy.type=subgoalvla", "--policy.preset=tiny"],
     "laptop": ["--policy.type=subgoalvla", "--policy.preset=laptop"],
+    # Meta-World's recipe 2 (scripts/metaworld.sh), CLIP's patch embedding or the convolutional stem
+    "laptop160": ["--policy.type=subgoalvla", "--policy.preset=laptop", *METAWORLD_RECIPE],
+    "laptop160_conv": [
+        "--policy.type=subgoalvla",
+        "--policy.preset=laptop",
+        *METAWORLD_RECIPE,
+        "--policy.backbone.vision_stem=conv",
+    ],
     "diffusion": [
         "--policy.type=diffusion",
         "--policy.pretrained_backbone_weights=null",
