@@ -24,7 +24,7 @@ def open_loop_error(monkeypatch: pytest.MonkeyPatch):
 class OffsetPolicy:
     """Predicts the recorded chunk moved by 0.3 along the first action dimension."""
 
-    config = SimpleNamespace(n_action_steps=3)
+    config = SimpleNamespace(n_action_steps=3, image_features={})
 
     def predict_action_chunk(self, batch: dict) -> torch.Tensor:
         chunk = batch[ACTION_KEY].clone()
@@ -46,6 +46,49 @@ def test_the_error_is_of_the_executed_steps_and_skips_padding(open_loop_error):
     assert first == pytest.approx([0.3, 0.3])
 
 
+class ImageReadingPolicy:
+    """Predicts the recorded chunk moved by its camera image's mean along the first action dimension."""
+
+    config = SimpleNamespace(n_action_steps=1, image_features={"observation.image": None})
+
+    def predict_action_chunk(self, batch: dict) -> torch.Tensor:
+        chunk = batch[ACTION_KEY].clone()
+        chunk[..., 0] += batch["observation.image"].mean(dim=(1, 2, 3)).unsqueeze(-1)
+        return chunk
+
+
+def test_images_from_another_episode_move_a_policy_that_reads_them(open_loop_error):
+    items = [
+        {
+            ACTION_KEY: torch.zeros(2, 2),
+            ACTION_IS_PAD_KEY: torch.zeros(2, dtype=torch.bool),
+            "observation.image": torch.full((3, 4, 4), value),
+        }
+        for value in (0.0, 0.5)
+    ]
+
+    def identity(x):
+        return x
+
+    own, _ = open_loop_error.executed_errors(ImageReadingPolicy(), identity, identity, items, [0, 1], 2)
+    other, _ = open_loop_error.executed_errors(
+        ImageReadingPolicy(), identity, identity, items, [0, 1], 2, image_donors=[1, 0]
+    )
+    assert own == pytest.approx([0.0, 0.5])
+    assert other == pytest.approx([0.5, 0.0])
+    assert items[0]["observation.image"].max() == 0.0  # the dataset's own items are left as they were
+
+
+def test_the_other_episode_gives_the_same_step_or_its_last_frame(open_loop_error):
+    spans = [
+        {"dataset_from_index": 0, "dataset_to_index": 10},
+        {"dataset_from_index": 10, "dataset_to_index": 14},
+    ]
+    dataset = SimpleNamespace(meta=SimpleNamespace(episodes=spans))
+    assert open_loop_error.frame_indices(dataset, [0, 1], 3) == [0, 3, 6, 9, 10, 13]
+    assert open_loop_error.other_episode_indices(dataset, [0, 1], 3) == [10, 13, 13, 13, 0, 3]
+
+
 def test_a_malformed_group_ends_in_one_line(open_loop_error, caplog):
     with pytest.raises(SystemExit) as stop:
         open_loop_error.main(["--policy-path", "x", "--dataset-root", "y", "--group", "trained=5-2"])
@@ -61,8 +104,12 @@ def test_a_trained_checkpoint_prints_one_row_per_group(open_loop_error, tmp_path
     assert open_loop_error.main([*argv, "--group", "first=0-0", "--group", "both=0-1", "--every", "6"]) == 0
     out = capsys.readouterr().out  # after a line LeRobot prints while loading
     rows = [line.split() for line in out[out.index("group ") :].splitlines()[1:]]
-    assert [(row[0], row[1], row[2]) for row in rows] == [("first", "1", "4"), ("both", "2", "8")]
-    assert all(float(value) >= 0 for row in rows for value in row[3:])
+    assert [tuple(row[:4]) for row in rows] == [("first", "own", "1", "4"), ("both", "own", "2", "8")]
+    assert all(float(value) >= 0 for row in rows for value in row[4:])
+    assert open_loop_error.main([*argv, "--group", "both=0-1", "--images-from-other-episode"]) == 0
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out[out.index("group ") :].splitlines()[1:]]
+    assert [tuple(row[:2]) for row in rows] == [("both", "own"), ("both", "other")]
 
     with pytest.raises(SystemExit):  # a group past the dataset's last episode
         open_loop_error.main([*argv, "--group", "late=1-2"])

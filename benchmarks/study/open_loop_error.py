@@ -11,7 +11,10 @@ success stays the measure of the policy; this only says where its errors begin.
         --group trained=30-59 --group new=300-369 --every 5
 
 Prints one row per group: episodes, frames, and the median and mean over frames of the Euclidean error of the
-executed actions (dataset units, averaged over the chunk's steps), and of its first action alone.
+executed actions (dataset units, averaged over the chunk's steps), and of its first action alone. With
+``--images-from-other-episode`` a second row per group feeds each frame the camera images of the same step of
+another episode of the group (the objects elsewhere, everything else the frame's own): a policy that reads
+where the objects are moves away from the expert, one that ignores them does not.
 
 Dimension legend: ``B`` frames in a batch, ``N`` executed steps of a chunk, ``A`` action dim.
 """
@@ -50,13 +53,51 @@ def frame_indices(dataset, episodes: list[int], every: int) -> list[int]:
     return indices
 
 
+def other_episode_indices(dataset, episodes: list[int], every: int) -> list[int]:
+    """For each frame of ``frame_indices``: the frame at the same step of the group's next episode (the last
+    one's next is the first), or that episode's last frame where it is shorter."""
+    donors = []
+    for position, episode in enumerate(episodes):
+        start = int(dataset.meta.episodes[episode]["dataset_from_index"])
+        stop = int(dataset.meta.episodes[episode]["dataset_to_index"])
+        other = episodes[(position + 1) % len(episodes)]
+        other_start = int(dataset.meta.episodes[other]["dataset_from_index"])
+        other_last = int(dataset.meta.episodes[other]["dataset_to_index"]) - 1
+        donors.extend(min(other_start + step, other_last) for step in range(0, stop - start, every))
+    return donors
+
+
+def _item(dataset, index: int, image_donor: int | None, camera_keys: list[str]) -> dict:
+    item = dict(dataset[index])
+    if image_donor is not None:
+        donor = dataset[image_donor]
+        item.update({key: donor[key] for key in camera_keys})
+    return item
+
+
 @torch.no_grad()
-def executed_errors(policy, preprocessor, postprocessor, dataset, indices: list[int], batch_size: int):
-    """Per frame: (mean over the executed steps of |predicted - recorded action|, the first step's)."""
+def executed_errors(
+    policy,
+    preprocessor,
+    postprocessor,
+    dataset,
+    indices: list[int],
+    batch_size: int,
+    image_donors: list[int] | None = None,
+):
+    """Per frame: (mean over the executed steps of |predicted - recorded action|, the first step's).
+
+    ``image_donors`` (one dataset index per frame) replaces each frame's camera images by the donor's, the
+    rest of the input (state, history, instruction) kept: how far the error moves says how much the policy
+    reads the image.
+    """
     n_exec = policy.config.n_action_steps
+    camera_keys = list(policy.config.image_features)
+    donors = image_donors or [None] * len(indices)
     chunk_errors, first_errors = [], []
     for start in range(0, len(indices), batch_size):
-        items = [dataset[i] for i in indices[start : start + batch_size]]
+        span = slice(start, start + batch_size)
+        items = [_item(dataset, i, d, camera_keys) for i, d in zip(indices[span], donors[span], strict=True)]
         batch = torch.utils.data.default_collate(items)
         recorded = batch[ACTION_KEY][:, :n_exec]  # (B, N, A), dataset units
         valid = ~batch[ACTION_IS_PAD_KEY][:, :n_exec]  # (B, N)
@@ -77,6 +118,11 @@ def _parse_args(argv: list[str] | None):
     parser.add_argument("--every", type=int, default=5, help="predict from every this-many-th frame")
     parser.add_argument("--batch-size", type=int, default=16, help="frames per forward pass")
     parser.add_argument("--seed", type=int, default=0, help="seeds the diffusion heads' noise")
+    parser.add_argument(
+        "--images-from-other-episode", action="store_true",
+        help="also predict with each frame's images taken from the same step of the group's next episode "
+        "(objects elsewhere, state and history kept): does the policy read where the objects are?",
+    )  # fmt: skip
     return parser.parse_args(argv)
 
 
@@ -101,16 +147,22 @@ def main(argv: list[str] | None = None) -> int:
             video_backend="pyav",
         )
         torch.manual_seed(args.seed)
-        print(f"{'group':<10} {'episodes':>8} {'frames':>7} {'median':>8} {'mean':>8} {'first med':>10}")
+        header = ("group", "images", "episodes", "frames", "median", "mean", "first med")
+        print("{:<10} {:<8} {:>8} {:>7} {:>8} {:>8} {:>10}".format(*header))
         for name, episodes in groups:
             indices = frame_indices(dataset, episodes, args.every)
-            chunk, first = executed_errors(
-                policy, preprocessor, postprocessor, dataset, indices, args.batch_size
-            )
-            print(
-                f"{name:<10} {len(episodes):>8} {len(indices):>7} {statistics.median(chunk):>8.3f} "
-                f"{statistics.fmean(chunk):>8.3f} {statistics.median(first):>10.3f}"
-            )
+            variants = {"own": None}
+            if args.images_from_other_episode:
+                variants["other"] = other_episode_indices(dataset, episodes, args.every)
+            for images, donors in variants.items():
+                chunk, first = executed_errors(
+                    policy, preprocessor, postprocessor, dataset, indices, args.batch_size, donors
+                )
+                print(
+                    f"{name:<10} {images:<8} {len(episodes):>8} {len(indices):>7} "
+                    f"{statistics.median(chunk):>8.3f} {statistics.fmean(chunk):>8.3f} "
+                    f"{statistics.median(first):>10.3f}"
+                )
     return 0
 
 
