@@ -296,6 +296,24 @@ def test_a_kept_run_is_recorded_from_its_pretrained_model_folder(common, tmp_pat
         import_run.records_from_run(run, _DATA_SIZE, {})
 
 
+def test_a_policy_trained_over_several_runs_counts_the_earlier_ones(common, tmp_path: Path) -> None:
+    import import_run
+
+    run = tmp_path / "continued"
+    _fake_run(run, {"reach-v3": [True]})
+    earlier = tmp_path / "first_cycle"  # an earlier run keeps its train.log and train_config.json only
+    _fake_run(earlier, {})
+    (earlier / "train" / "checkpoints" / "last" / "pretrained_model" / "train_config.json").rename(
+        earlier / "train_config.json"
+    )
+    (record,) = import_run.records_from_run(run, _DATA_SIZE, {}, earlier_runs=[earlier])
+    assert (record["train_samples"], record["train_seconds"]) == (1600, 250)  # 2 x 800 samples, 2 x 125 s
+    assert record["samples_per_s"] == 61  # the last run's
+    (earlier / "train.log").write_text("no step lines\n")
+    with pytest.raises(SystemExit, match="first_cycle/train.log has no lerobot-train step lines"):
+        import_run.records_from_run(run, _DATA_SIZE, {}, earlier_runs=[earlier])
+
+
 def test_the_data_size_comes_from_a_run_on_the_same_data(common) -> None:
     import import_run
 

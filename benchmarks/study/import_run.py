@@ -8,7 +8,8 @@ evaluated task. An evaluation on other seeds (``scripts/metaworld.sh``'s ``eval_
 ``--eval-dir`` in its own setting (``metaworld_mt10_heldout``: seeds chosen after every recipe choice), so
 records of two seed ranges are never pooled or overwritten. The data's size comes from the dataset
 (``--dataset``) or, where it is no longer on this machine, from the records of a run on the same data
-(``--dataset-of METHOD``).
+(``--dataset-of METHOD``). A policy trained further in new runs (``lerobot-train --policy.path``) is recorded
+from its last run's folder with ``--earlier-run`` for each run before: samples and training time are the sum.
 
 Usage::
 
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 from common import LH_MTLC, dataset_size, machine
@@ -38,8 +40,13 @@ def _eval_seconds(eval_dir: Path, task: str) -> float | None:
     return None if seconds is None else float(seconds)
 
 
-#: Where a run folder keeps the checkpoint it was evaluated with: scripts/*.sh's layout, then a kept run's.
-CHECKPOINT_FOLDERS = (Path("train") / "checkpoints" / "last" / "pretrained_model", Path("pretrained_model"))
+#: Where a run folder keeps its train_config.json: scripts/*.sh's layout, a kept run's, then the folder itself
+#: (an earlier run of a policy trained over several lerobot-train runs keeps only its config and log).
+CHECKPOINT_FOLDERS = (
+    Path("train") / "checkpoints" / "last" / "pretrained_model",
+    Path("pretrained_model"),
+    Path("."),
+)
 
 
 def _train_config(run_dir: Path) -> dict:
@@ -71,23 +78,40 @@ def dataset_size_of(method: str, setting: str, stored: list[dict]) -> dict[str, 
     return {"train_episodes": episodes, "train_frames": frames}
 
 
-def records_from_run(
-    run_dir: Path, data_size: dict[str, int], provenance: dict, eval_dir: Path | None = None
-) -> list[dict]:
-    """One record per task evaluated in ``eval_dir`` (default ``run_dir/eval``; and one for its chains), each
-    carrying ``provenance`` (method, setting, scene, commit and the commands) and ``data_size``
-    (``dataset_size``'s fields)."""
-    from lerobot_subgoalvla.demo_report import parse_train_log, read_task_results, train_wall_seconds
+def _training(run_dir: Path) -> tuple[dict, list[dict], int, float | None]:
+    """(train_config, the log's step lines, samples seen, wall seconds) of the lerobot-train run in
+    ``run_dir``."""
+    from lerobot_subgoalvla.demo_report import parse_train_log, train_wall_seconds
 
     log = parse_train_log(run_dir / "train.log")
     if not log:
         raise SystemExit(f"{run_dir / 'train.log'} has no lerobot-train step lines; is the run trained?")
     config = _train_config(run_dir)
-    seconds = train_wall_seconds(run_dir / "train.log")
+    return config, log, config["steps"] * config["batch_size"], train_wall_seconds(run_dir / "train.log")
+
+
+def records_from_run(
+    run_dir: Path,
+    data_size: dict[str, int],
+    provenance: dict,
+    eval_dir: Path | None = None,
+    earlier_runs: Sequence[Path] = (),
+) -> list[dict]:
+    """One record per task evaluated in ``eval_dir`` (default ``run_dir/eval``; and one for its chains), each
+    carrying ``provenance`` (method, setting, scene, commit and the commands) and ``data_size``
+    (``dataset_size``'s fields). A policy trained over several lerobot-train runs (``--policy.path`` of the
+    one before) names the ``earlier_runs``: their samples and wall seconds are added to ``run_dir``'s."""
+    from lerobot_subgoalvla.demo_report import read_task_results
+
+    config, log, samples, seconds = _training(run_dir)
+    for earlier in earlier_runs:
+        _, _, earlier_samples, earlier_seconds = _training(earlier)
+        samples += earlier_samples
+        seconds = None if seconds is None or earlier_seconds is None else seconds + earlier_seconds
     training = {
         **provenance,
         "seed": config["seed"],
-        "train_samples": config["steps"] * config["batch_size"],
+        "train_samples": samples,
         **data_size,
         "train_seconds": None if seconds is None else round(seconds, 1),
         "samples_per_s": log[-1].get("smp/s"),
@@ -136,6 +160,14 @@ def main() -> None:
     for stage in ("data", "train", "eval"):
         parser.add_argument(f"--{stage}-command", required=True, help=f"the exact {stage} command")
     parser.add_argument(
+        "--earlier-run",
+        type=Path,
+        action="append",
+        default=[],
+        help="a folder (train.log and train_config.json) of a lerobot-train run this policy was trained in "
+        "before RUN_DIR's (repeat); its samples and training time are added",
+    )
+    parser.add_argument(
         "--note", default=None, help="what a reader must know about the run (its provenance note)"
     )
     args = parser.parse_args()
@@ -161,7 +193,7 @@ def main() -> None:
     }
     if args.eval_dir is not None and not args.eval_dir.is_dir():
         raise SystemExit(f"--eval-dir {args.eval_dir}: no such folder; pass the folder of the tasks' results")
-    records = records_from_run(args.run_dir, data_size, provenance, args.eval_dir)
+    records = records_from_run(args.run_dir, data_size, provenance, args.eval_dir, args.earlier_run)
     store_records(records)  # replaces the records of the same run (e.g. one evaluated again)
     for r in records:
         print(f"{r['method']} {r['setting']:<14} {r['task']:<24} {r['successes']}/{r['episodes']}")
