@@ -119,6 +119,22 @@ def test_one_run_switches_stage_at_the_configured_step_and_keeps_it_on_reload(
     assert int(reloaded.optimizer_steps) == 3 and reloaded.stage == "stage2"  # resume continues in stage II
 
 
+def test_a_loaded_policy_past_its_switch_says_at_the_first_training_step_that_it_trains_stage_two_only(
+    make_config, make_policy_and_processors, raw_batch, caplog
+) -> None:
+    """Why: a policy fine-tuned with --policy.path keeps its step count while the schedule restarts."""
+    policy, pre, _ = make_policy_and_processors(make_config(stage2_start_step=2))
+    batch = pre(dict(raw_batch))
+    policy.optimizer_steps += 5  # what from_pretrained restores from a finished run's weights
+    policy.train()
+    with caplog.at_level("INFO", logger="lerobot_subgoalvla"):
+        policy.forward(batch)
+        policy.forward(batch)
+    warnings = [r for r in caplog.records if "trains stage II only" in r.getMessage()]
+    assert len(warnings) == 1 and warnings[0].levelname == "WARNING"  # once per run, not per step
+    assert "--policy.stage2_start_step=2" in warnings[0].getMessage()
+
+
 @pytest.mark.parametrize(
     "overrides",
     [

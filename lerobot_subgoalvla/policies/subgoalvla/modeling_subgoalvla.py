@@ -127,6 +127,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         self._history = StateHistoryBuffer(config.state_history_len, config.state_stride or 1)
         self._queue: deque[Tensor] = deque(maxlen=config.n_action_steps)
         self._image_sizes_checked = False
+        self._start_step_logged = False
         self.reset()
 
     # Training -----------------------------------------------------------------------------------------------
@@ -143,6 +144,28 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
             logger.info(
                 "SubgoalVLA: switching to %s after %d optimizer steps", self.stage, int(self.optimizer_steps)
             )
+
+    def _log_start_step(self) -> None:
+        """Say once where a loaded policy's stage count stands: it is saved with the weights, so a finished
+        policy given to a new run with ``--policy.path`` would otherwise train stage II only, silently."""
+        if self._start_step_logged:
+            return
+        self._start_step_logged = True
+        step, switch = int(self.optimizer_steps), self.config.stage2_start_step
+        if step == 0:
+            return
+        if self.stage == "stage2" and self.config.stage == "stage1":
+            logger.warning(
+                "SubgoalVLA: training starts at the loaded policy's optimizer step %d, past "
+                "--policy.stage2_start_step=%d, so this run trains stage II only. Right for --resume; to "
+                "train a finished policy from stage I again, set --policy.stage2_start_step beyond %d "
+                "(docs/policy.md, 'Training a finished policy further')",
+                step,
+                switch,
+                step,
+            )
+        else:
+            logger.info("SubgoalVLA: training continues from the loaded policy's optimizer step %d", step)
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
         """Training loss of the current stage (eq. 1 = planner eq. 3 + generator eq. 4).
@@ -162,6 +185,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
             )
         if self.training:
             require_autocast(self.config.dtype, self.optimizer_steps.device.type)
+            self._log_start_step()
         stage = self.stage
         with self._step_rng():
             losses = self.model.compute_losses(batch, stage)
