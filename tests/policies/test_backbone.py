@@ -85,6 +85,41 @@ def test_prepare_pixel_values_gives_each_camera_a_strip_in_order(num_cameras: in
         torch.testing.assert_close(pixels[..., left:right], expected)
 
 
+def test_prepare_pixel_values_separate_gives_each_camera_its_own_square_sample_by_sample() -> None:
+    """``separate``: V full squares per sample, in the order LLaVA fills the sample's V placeholder runs."""
+    static = torch.rand(2, 3, 200, 200)
+    gripper = torch.rand(2, 3, 84, 84)
+    pixels = prepare_pixel_values([static, gripper], 32, (0.0,) * 3, (1.0,) * 3, camera_layout="separate")
+    assert pixels.shape == (4, 3, 32, 32)  # (B * V, 3, I, I)
+    alone = [prepare_pixel_values([view], 32, (0.0,) * 3, (1.0,) * 3) for view in (static, gripper)]
+    for b in range(2):  # sample b's static camera, then its gripper camera: each as if it were the only one
+        torch.testing.assert_close(pixels[2 * b], alone[0][b])
+        torch.testing.assert_close(pixels[2 * b + 1], alone[1][b])
+
+
+def test_tokenize_instructions_writes_one_placeholder_run_per_image() -> None:
+    spec = VLMInputSpec.load(None, TINY)
+    ids, _ = tokenize_instructions(build_tiny_tokenizer(CALVIN_WORDS), INSTRUCTIONS, 12, spec, 2)
+    assert ids.shape == (2, 2 * spec.num_image_tokens + 12)
+    assert (ids[:, : 2 * spec.num_image_tokens] == spec.image_token_id).all()
+    assert (ids[:, 2 * spec.num_image_tokens :] != spec.image_token_id).all()
+
+
+def test_separate_cameras_each_reach_their_own_image_tokens() -> None:
+    """Changing the gripper camera changes the second run of image tokens, not the first (causal LLM)."""
+    backbone = VLMBackbone(None, tiny=TINY, camera_layout="separate").eval()
+    ids, mask = tokenize_instructions(
+        build_tiny_tokenizer(CALVIN_WORDS), INSTRUCTIONS, 10, backbone.input_spec, 2
+    )
+    static, gripper = torch.rand(2, 3, 200, 200), torch.rand(2, 3, 84, 84)
+    with torch.no_grad():
+        before, _ = backbone(ids, mask, backbone.prepare_pixel_values([static, gripper]))
+        after, _ = backbone(ids, mask, backbone.prepare_pixel_values([static, torch.rand(2, 3, 84, 84)]))
+    n = backbone.input_spec.num_image_tokens
+    torch.testing.assert_close(after[:, :n], before[:, :n])  # the static camera's tokens
+    assert not torch.allclose(after[:, n : 2 * n], before[:, n : 2 * n])
+
+
 def test_backbone_returns_layer_k_hidden_states_and_mask() -> None:
     backbone = VLMBackbone(None, layer=None, tiny=dataclasses.replace(TINY, text_num_layers=4)).eval()
     assert backbone.layer == 2 and len(backbone.vlm.language_model.layers) == 2  # k = m // 2, truncated

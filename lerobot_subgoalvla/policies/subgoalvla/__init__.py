@@ -20,5 +20,6 @@ uses):
 | ``X`` | feature size of those tokens (p or A) |
 | ``Tc``, ``Dc`` | conditioning tokens and their width |
 | ``R`` | repeated diffusion steps per training sample |
+| ``V`` | camera views the policy reads (``camera_keys``) |
 | ``H``, ``W`` | camera image size; ``I`` the vision tower's square input side |
 """

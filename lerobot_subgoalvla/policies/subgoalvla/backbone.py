@@ -24,7 +24,8 @@ input ids with the ``<image>`` placeholder expanded to one id per image token; `
 cameras side by side, resized to the vision tower's size and normalised with its statistics.
 
 Dimension legend (the package's, ``__init__.py``): ``B`` batch, ``S`` VLM tokens (image placeholders +
-instruction), ``E`` LLM hidden size, ``H, W`` camera image size, ``I`` vision-tower image side.
+instruction), ``E`` LLM hidden size, ``V`` cameras, ``H, W`` camera image size, ``I`` vision-tower image
+side.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F  # noqa: N812
+from einops import rearrange
 from torch import Tensor, nn
 from transformers import (
     AutoConfig,
@@ -150,20 +152,26 @@ class VLMInputSpec:
 
 
 def tokenize_instructions(
-    tokenizer: PreTrainedTokenizerBase, instructions: list[str], max_length: int, spec: VLMInputSpec
+    tokenizer: PreTrainedTokenizerBase,
+    instructions: list[str],
+    max_length: int,
+    spec: VLMInputSpec,
+    images_per_sample: int = 1,
 ) -> tuple[Tensor, Tensor]:
-    """LLaVA-protocol input ids: ``[BOS] <image> x num_image_tokens, instruction tokens, padding``.
+    """LLaVA-protocol input ids: ``[BOS] <image> x (images_per_sample * num_image_tokens), instruction
+    tokens, padding``.
 
-    The image placeholder is written as ``num_image_tokens`` copies of its id (LLaVA replaces each by one
-    visual token). Instructions are truncated/right-padded to ``max_length`` tokens so every batch has the
-    same length ``S = [1 +] num_image_tokens + max_length``; causal attention means valid tokens never see the
-    right padding.
+    The image placeholder is written as ``num_image_tokens`` copies of its id per image (LLaVA replaces
+    each by one visual token, image after image). Instructions are truncated/right-padded to ``max_length``
+    tokens so every batch has the same length ``S = [1 +] images_per_sample * num_image_tokens +
+    max_length``; causal attention means valid tokens never see the right padding.
 
     Args:
         tokenizer: from ``load_tokenizer``.
         instructions: B instruction strings.
         max_length: instruction tokens kept (BackboneConfig.max_instruction_tokens).
         spec: the VLM's input facts.
+        images_per_sample: images the vision tower encodes per sample (``camera_layout=separate``: V).
 
     Returns:
         input_ids (B, S) int64 and attention_mask (B, S) int64 (1 = valid).
@@ -177,7 +185,7 @@ def tokenize_instructions(
         return_tensors="pt",
     )
     b = len(instructions)
-    prefix = [spec.image_token_id] * spec.num_image_tokens
+    prefix = [spec.image_token_id] * (spec.num_image_tokens * images_per_sample)
     if tokenizer.bos_token_id is not None:
         prefix = [tokenizer.bos_token_id, *prefix]
     prefix_ids = torch.tensor(prefix, dtype=torch.long).expand(b, -1)
@@ -186,42 +194,51 @@ def tokenize_instructions(
     return input_ids, attention_mask
 
 
+def _resized(view: Tensor, height: int, width: int) -> Tensor:
+    return F.interpolate(
+        view.float(), size=(height, width), mode="bilinear", align_corners=False, antialias=True
+    )
+
+
 def prepare_pixel_values(
     views: Sequence[Tensor],
     image_size: int,
     image_mean: tuple[float, ...],
     image_std: tuple[float, ...],
+    camera_layout: str = "side_by_side",
 ) -> Tensor:
-    """The cameras side by side in one square image for the vision tower, normalised (paper appendix A).
+    """The cameras as the vision tower's square images, normalised (paper appendix A).
 
-    The paper concatenates CALVIN's two views and resizes the result to the tower's square input; with K
-    cameras view k is resized to the k-th vertical strip of an R x R image (R x R/K, left to right in the
-    given order), which equals concatenating and then resizing. One camera fills the square; CALVIN's two are
-    the paper's layout. Appendix A says 334 x 334, but CLIP ViT-L/14-336 (LLaVA-1.5) takes 336 (334 is not a
+    ``side_by_side``, the paper's layout: the paper concatenates CALVIN's two views and resizes the result to
+    the tower's square input; with V cameras view k is resized to the k-th vertical strip of an R x R image
+    (R x R/V, left to right in the given order), which equals concatenating and then resizing. One camera
+    fills the square. Appendix A says 334 x 334, but CLIP ViT-L/14-336 (LLaVA-1.5) takes 336 (334 is not a
     multiple of 14), so R is the vision tower's own ``image_size`` (336 paper, 384 SigLIP in ``small``).
+    ``separate``: each view resized to its own R x R image, the V images of a sample one after the other
+    (LLaVA fills the sample's V runs of image placeholders in that order): a small tower then sees each
+    camera at its full size instead of squeezed to 1/V of the width.
 
     Args:
-        views: K >= 1 camera images (B, 3, H_k, W_k) in [0, 1], in the policy's camera order.
+        views: V >= 1 camera images (B, 3, H_k, W_k) in [0, 1], in the policy's camera order.
         image_size: R.
         image_mean, image_std: 3 channel statistics of the vision tower.
+        camera_layout: ``side_by_side`` or ``separate``.
 
     Returns:
-        (B, 3, I, I) normalised pixel values.
+        (B, 3, I, I) normalised pixel values, or (B * V, 3, I, I) with ``separate``.
     """
     if not views:
         raise ValueError("prepare_pixel_values needs at least one camera image")
-    bounds = [image_size * k // len(views) for k in range(len(views) + 1)]  # strip edges, left to right
-    strips = [
-        F.interpolate(
-            view.float(),
-            size=(image_size, right - left),
-            mode="bilinear",
-            align_corners=False,
-            antialias=True,
-        )
-        for view, left, right in zip(views, bounds[:-1], bounds[1:], strict=True)
-    ]
-    pixels = torch.cat(strips, dim=-1)  # (B, 3, I, I)
+    if camera_layout == "separate":
+        images = torch.stack([_resized(view, image_size, image_size) for view in views])  # (V, B, 3, I, I)
+        pixels = rearrange(images, "v b c h w -> (b v) c h w")
+    else:
+        bounds = [image_size * k // len(views) for k in range(len(views) + 1)]  # strip edges, left to right
+        strips = [
+            _resized(view, image_size, right - left)
+            for view, left, right in zip(views, bounds[:-1], bounds[1:], strict=True)
+        ]
+        pixels = torch.cat(strips, dim=-1)  # (B, 3, I, I)
     mean = torch.tensor(image_mean, device=pixels.device).view(1, 3, 1, 1)
     std = torch.tensor(image_std, device=pixels.device).view(1, 3, 1, 1)
     return (pixels - mean) / std
@@ -258,6 +275,7 @@ class VLMBackbone(nn.Module):
             one; used to size the paper/small architectures on the meta device without downloading anything.
         vision_stem: the tiny tower's patch embedding, "patch" (CLIP's) or "conv" (``vision_stem.ConvStem``);
             None keeps the model's own (pretrained towers).
+        camera_layout: how ``prepare_pixel_values`` lays out the cameras, "side_by_side" or "separate".
     """
 
     def __init__(
@@ -269,8 +287,10 @@ class VLMBackbone(nn.Module):
         torch_dtype: str | torch.dtype = "float32",
         vlm_config: PretrainedConfig | None = None,
         vision_stem: str | None = None,
+        camera_layout: str = "side_by_side",
     ) -> None:
         super().__init__()
+        self.camera_layout = camera_layout
         if name_or_path is not None and (tiny is not None or vlm_config is not None):
             raise ValueError("VLMBackbone: tiny / vlm_config only apply when name_or_path is None")
         if tiny is not None and vlm_config is not None:
@@ -346,9 +366,11 @@ class VLMBackbone(nn.Module):
         return self.vlm.language_model.get_input_embeddings().weight.dtype
 
     def prepare_pixel_values(self, views: Sequence[Tensor]) -> Tensor:
-        """``prepare_pixel_values`` with this backbone's image size and statistics. Returns (B, 3, I, I)."""
+        """``prepare_pixel_values`` with this backbone's image size, statistics and camera layout."""
         spec = self.input_spec
-        return prepare_pixel_values(views, spec.image_size, spec.image_mean, spec.image_std)
+        return prepare_pixel_values(
+            views, spec.image_size, spec.image_mean, spec.image_std, self.camera_layout
+        )
 
     def forward(
         self, input_ids: Tensor, attention_mask: Tensor, pixel_values: Tensor
@@ -358,7 +380,7 @@ class VLMBackbone(nn.Module):
         Args:
             input_ids: (B, S) from ``tokenize_instructions`` (image placeholders included).
             attention_mask: (B, S), 1/True = valid token.
-            pixel_values: (B, 3, I, I) from ``prepare_pixel_values``.
+            pixel_values: (B, 3, I, I) from ``prepare_pixel_values`` ((B * V, 3, I, I) with ``separate``).
 
         Returns:
             hidden (B, S, E) = H[k] and mask (B, S) bool, True = valid.

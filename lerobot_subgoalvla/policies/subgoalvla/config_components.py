@@ -87,6 +87,10 @@ class BackboneConfig:
     # tiny vision-encoder patch embedding: `patch` (CLIP's one linear map per patch) or `conv` (stride-2 3x3
     # convolutions, then one over the rest of the patch: Xiao et al. 2021; needs an even patch_size).
     vision_stem: str | None = None
+    # how the cameras enter the vision tower: `side_by_side` (the paper's: one square image, camera k resized
+    # into its k-th vertical strip) or `separate` (one square image per camera, each at the tower's full
+    # size: K times the image tokens and the vision cost, no camera squeezed to 1/K of the width).
+    camera_layout: str = "side_by_side"
     # words of the tiny tokenizer; lerobot-train fills it from the training dataset's tasks and the
     # instructions its metadata lists, and it is saved with the checkpoint (leave unset).
     vocabulary: list[str] | None = None

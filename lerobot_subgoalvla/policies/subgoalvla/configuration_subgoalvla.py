@@ -57,6 +57,7 @@ STAGES = ("stage1", "stage2")
 RECIPE = "recipe"
 TORCH_DTYPES = ("float32", "bfloat16", "float16")
 VISION_STEMS = ("patch", "conv")
+CAMERA_LAYOUTS = ("side_by_side", "separate")
 
 
 @PreTrainedConfig.register_subclass("subgoalvla")
@@ -204,6 +205,7 @@ class SubgoalVLAConfig(PreTrainedConfig, DatasetFitting):
         require_choice("feature_aggregation", self.feature_aggregation, FEATURE_AGGREGATIONS)
         require_choice("stage", self.stage, STAGES)
         require_choice("backbone.torch_dtype", self.backbone.torch_dtype, TORCH_DTYPES)
+        require_choice("backbone.camera_layout", self.backbone.camera_layout, CAMERA_LAYOUTS)
         require_choice("dtype", self.dtype, TORCH_DTYPES)
         if self.normalization_mapping.get("STATE") != NormalizationMode.IDENTITY:
             raise ConfigError(

@@ -52,6 +52,12 @@ class DatasetFitting:
         inputs = self.input_features or {}
         return [key for key, feature in inputs.items() if feature.type is FeatureType.VISUAL]
 
+    @property
+    def images_per_sample(self) -> int:
+        """Images the vision tower encodes per sample: one per camera with
+        ``backbone.camera_layout=separate``, one in all side by side."""
+        return len(self.image_features_in_order) if self.backbone.camera_layout == "separate" else 1
+
     def check_features(self) -> None:
         """Cameras, state and action exist and fit; history/trace inputs, when present, are state sequences.
 

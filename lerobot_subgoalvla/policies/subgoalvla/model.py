@@ -114,6 +114,7 @@ class SubgoalVLAModel(nn.Module):
                 bb.tiny_dims(),
                 bb.torch_dtype,
                 vision_stem=bb.vision_stem,
+                camera_layout=bb.camera_layout,
             )
         self.backbone = backbone
         self.camera_keys = config.image_features_in_order  # the views' left-to-right order is learned

@@ -64,12 +64,15 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
             number of image placeholders and the vocabulary (an instruction with words outside it logs one
             warning naming them: they become ``<unk>``).
         task_key: complementary-data key holding the instruction(s).
+        images_per_sample: images the vision tower encodes per sample, each with its own run of placeholders
+            (``SubgoalVLAConfig.images_per_sample``; 1 for the paper's side-by-side cameras).
     """
 
     name_or_path: str | None = None
     max_length: int = 32
     tiny_dims: dict[str, Any] | None = None
     task_key: str = TASK_KEY
+    images_per_sample: int = 1
     _tokenizer: Any = field(default=None, init=False, repr=False)
     _warned: set[str] = field(default_factory=set, init=False, repr=False)  # instructions already reported
     _spec: Any = field(default=None, init=False, repr=False)  # backbone.VLMInputSpec
@@ -100,7 +103,7 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
     def sequence_length(self) -> int:
         """S, the length of every tokenised instruction (BOS + image placeholders + max_length)."""
         bos = int(self._tokenizer.bos_token_id is not None)
-        return bos + self._spec.num_image_tokens + self.max_length
+        return bos + self._spec.num_image_tokens * self.images_per_sample + self.max_length
 
     def _instructions(self) -> list[str]:
         complementary = self.transition.get(TransitionKey.COMPLEMENTARY_DATA) or {}
@@ -131,7 +134,9 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
         instructions = self._instructions()
         if self.tiny_dims is not None:
             self._warn_on_unknown_words(instructions)
-        input_ids, attention_mask = self._tokenize(self._tokenizer, instructions, self.max_length, self._spec)
+        input_ids, attention_mask = self._tokenize(
+            self._tokenizer, instructions, self.max_length, self._spec, self.images_per_sample
+        )
         device = next((v.device for v in observation.values() if isinstance(v, torch.Tensor)), None)
         observation = dict(observation)
         observation[OBS_LANGUAGE_TOKENS] = input_ids.to(device)  # (B, S)
@@ -146,6 +151,7 @@ class SubgoalVLATokenizerProcessorStep(ObservationProcessorStep):
             "max_length": self.max_length,
             "tiny_dims": self.tiny_dims,
             "task_key": self.task_key,
+            "images_per_sample": self.images_per_sample,
         }
 
     def transform_features(
@@ -190,6 +196,7 @@ def make_subgoalvla_pre_post_processors(
         name_or_path=config.backbone.name_or_path,
         max_length=config.backbone.max_instruction_tokens,
         tiny_dims=_tiny_dims_dict(config),
+        images_per_sample=config.images_per_sample,
     )
     return make_policy_processor_pipelines(
         input_steps=[
