@@ -13,6 +13,8 @@ Usage::
     python benchmarks/train_throughput.py ... --policies tiny laptop --threads 1 2 --workers 0 1 2
     python benchmarks/train_throughput.py --dataset-root outputs/metaworld/dataset --repo-id local/metaworld \
         --policies laptop160 laptop160_conv   # the vision stem's cost at Meta-World's recipe
+    python benchmarks/train_throughput.py --dataset-root outputs/all34/dataset --repo-id local/calvin_demo \
+        --policies all34 all34_separate       # one image per camera against side by side (CALVIN)
 
 The dataset needs cameras of one shape for ``diffusion`` and ``multi_task_dit`` (LeRobot's requirement); they
 are skipped otherwise. ``multi_task_dit`` is configured as in the study (``study/multi_task.py``: a random
@@ -40,6 +42,7 @@ METAWORLD_RECIPE = [
     "--policy.backbone.patch_size=20",
     "--policy.n_action_steps=4",
 ]
+CALVIN_ALL34_RECIPE = ["--policy.backbone.image_size=160", "--policy.backbone.patch_size=20"]
 POLICIES = {
     "tiny": ["--policy.type=subgoalvla", "--policy.preset=tiny"],
     "laptop": ["--policy.type=subgoalvla", "--policy.preset=laptop"],
@@ -50,6 +53,14 @@ POLICIES = {
         "--policy.preset=laptop",
         *METAWORLD_RECIPE,
         "--policy.backbone.vision_stem=conv",
+    ],
+    # CALVIN's all34 recipe (scripts/demo.sh), the paper's side-by-side cameras or one image per camera
+    "all34": ["--policy.type=subgoalvla", "--policy.preset=laptop", *CALVIN_ALL34_RECIPE],
+    "all34_separate": [
+        "--policy.type=subgoalvla",
+        "--policy.preset=laptop",
+        *CALVIN_ALL34_RECIPE,
+        "--policy.backbone.camera_layout=separate",
     ],
     "diffusion": [
         "--policy.type=diffusion",
