@@ -12,7 +12,7 @@ from helpers.robot_datasets import make_robot_dataset_in_subprocess
 from helpers.study import study_module
 from helpers.tiny_training import train_tiny
 
-from lerobot_subgoalvla.contract.keys import ACTION_IS_PAD_KEY, ACTION_KEY
+from lerobot_subgoalvla.contract.keys import ACTION_IS_PAD_KEY, ACTION_KEY, TASK_KEY
 from lerobot_subgoalvla.datasets_conversion.add_traces import add_traces
 
 
@@ -79,6 +79,35 @@ def test_images_from_another_episode_move_a_policy_that_reads_them(open_loop_err
     assert items[0]["observation.image"].max() == 0.0  # the dataset's own items are left as they were
 
 
+class InstructionReadingPolicy:
+    """Predicts the recorded chunk, moved by 0.4 along the first action dimension under instruction 'b'."""
+
+    config = SimpleNamespace(n_action_steps=1, image_features={})
+
+    def predict_action_chunk(self, batch: dict) -> torch.Tensor:
+        chunk = batch[ACTION_KEY].clone()
+        chunk[..., 0] += torch.tensor([0.4 * (task == "b") for task in batch[TASK_KEY]]).unsqueeze(-1)
+        return chunk
+
+
+def test_another_instruction_moves_a_policy_that_reads_it(open_loop_error):
+    items = [
+        {ACTION_KEY: torch.zeros(2, 2), ACTION_IS_PAD_KEY: torch.zeros(2, dtype=torch.bool), TASK_KEY: "a"}
+        for _ in range(2)
+    ]
+
+    def identity(x):
+        return x
+
+    policy = InstructionReadingPolicy()
+    own, _ = open_loop_error.executed_errors(policy, identity, identity, items, [0, 1], 2)
+    swapped, _ = open_loop_error.executed_errors(
+        policy, identity, identity, items, [0, 1], 2, instruction="b"
+    )
+    assert own == pytest.approx([0.0, 0.0]) and swapped == pytest.approx([0.4, 0.4])
+    assert items[0][TASK_KEY] == "a"
+
+
 def test_the_other_episode_gives_the_same_step_or_its_last_frame(open_loop_error):
     spans = [
         {"dataset_from_index": 0, "dataset_to_index": 10},
@@ -110,6 +139,10 @@ def test_a_trained_checkpoint_prints_one_row_per_group(open_loop_error, tmp_path
     out = capsys.readouterr().out
     rows = [line.split() for line in out[out.index("group ") :].splitlines()[1:]]
     assert [tuple(row[:2]) for row in rows] == [("both", "own"), ("both", "other")]
+    assert open_loop_error.main([*argv, "--group", "both=0-1", "--instruction", "open the drawer"]) == 0
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out[out.index("group ") :].splitlines()[1:]]
+    assert [tuple(row[:2]) for row in rows] == [("both", "own"), ("both", "instr")]
 
     with pytest.raises(SystemExit):  # a group past the dataset's last episode
         open_loop_error.main([*argv, "--group", "late=1-2"])

@@ -14,7 +14,10 @@ Prints one row per group: episodes, frames, and the median and mean over frames 
 executed actions (dataset units, averaged over the chunk's steps), and of its first action alone. With
 ``--images-from-other-episode`` a second row per group feeds each frame the camera images of the same step of
 another episode of the group (the objects elsewhere, everything else the frame's own): a policy that reads
-where the objects are moves away from the expert, one that ignores them does not.
+where the objects are moves away from the expert, one that ignores them does not. With ``--instruction TEXT``
+a row per group feeds every frame that instruction instead of its own (another task's, say): a policy that
+tells tasks apart by their instruction moves away from the expert, one that infers the task from the scene
+does not.
 
 Dimension legend: ``B`` frames in a batch, ``N`` executed steps of a chunk, ``A`` action dim.
 """
@@ -28,7 +31,7 @@ import sys
 import torch
 
 from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, user_errors
-from lerobot_subgoalvla.contract.keys import ACTION_IS_PAD_KEY, ACTION_KEY
+from lerobot_subgoalvla.contract.keys import ACTION_IS_PAD_KEY, ACTION_KEY, TASK_KEY
 from lerobot_subgoalvla.visualization.checkpoint import load_policy
 
 logger = logging.getLogger(__name__)
@@ -67,11 +70,15 @@ def other_episode_indices(dataset, episodes: list[int], every: int) -> list[int]
     return donors
 
 
-def _item(dataset, index: int, image_donor: int | None, camera_keys: list[str]) -> dict:
+def _item(
+    dataset, index: int, image_donor: int | None, camera_keys: list[str], instruction: str | None
+) -> dict:
     item = dict(dataset[index])
     if image_donor is not None:
         donor = dataset[image_donor]
         item.update({key: donor[key] for key in camera_keys})
+    if instruction is not None:
+        item[TASK_KEY] = instruction
     return item
 
 
@@ -84,12 +91,13 @@ def executed_errors(
     indices: list[int],
     batch_size: int,
     image_donors: list[int] | None = None,
+    instruction: str | None = None,
 ):
     """Per frame: (mean over the executed steps of |predicted - recorded action|, the first step's).
 
     ``image_donors`` (one dataset index per frame) replaces each frame's camera images by the donor's, the
     rest of the input (state, history, instruction) kept: how far the error moves says how much the policy
-    reads the image.
+    reads the image. ``instruction`` replaces every frame's instruction the same way.
     """
     n_exec = policy.config.n_action_steps
     camera_keys = list(policy.config.image_features)
@@ -97,7 +105,10 @@ def executed_errors(
     chunk_errors, first_errors = [], []
     for start in range(0, len(indices), batch_size):
         span = slice(start, start + batch_size)
-        items = [_item(dataset, i, d, camera_keys) for i, d in zip(indices[span], donors[span], strict=True)]
+        items = [
+            _item(dataset, i, d, camera_keys, instruction)
+            for i, d in zip(indices[span], donors[span], strict=True)
+        ]
         batch = torch.utils.data.default_collate(items)
         recorded = batch[ACTION_KEY][:, :n_exec]  # (B, N, A), dataset units
         valid = ~batch[ACTION_IS_PAD_KEY][:, :n_exec]  # (B, N)
@@ -123,6 +134,11 @@ def _parse_args(argv: list[str] | None):
         help="also predict with each frame's images taken from the same step of the group's next episode "
         "(objects elsewhere, state and history kept): does the policy read where the objects are?",
     )  # fmt: skip
+    parser.add_argument(
+        "--instruction", default=None,
+        help="also predict with this instruction in place of every frame's own (e.g. another task's): "
+        "does the policy read which task it is given?",
+    )  # fmt: skip
     return parser.parse_args(argv)
 
 
@@ -147,16 +163,25 @@ def main(argv: list[str] | None = None) -> int:
             video_backend="pyav",
         )
         torch.manual_seed(args.seed)
-        header = ("group", "images", "episodes", "frames", "median", "mean", "first med")
+        header = ("group", "input", "episodes", "frames", "median", "mean", "first med")
         print("{:<10} {:<8} {:>8} {:>7} {:>8} {:>8} {:>10}".format(*header))
         for name, episodes in groups:
             indices = frame_indices(dataset, episodes, args.every)
-            variants = {"own": None}
+            variants = {"own": (None, None)}  # row label: (image donors, instruction)
             if args.images_from_other_episode:
-                variants["other"] = other_episode_indices(dataset, episodes, args.every)
-            for images, donors in variants.items():
+                variants["other"] = (other_episode_indices(dataset, episodes, args.every), None)
+            if args.instruction is not None:
+                variants["instr"] = (None, args.instruction)
+            for images, (donors, instruction) in variants.items():
                 chunk, first = executed_errors(
-                    policy, preprocessor, postprocessor, dataset, indices, args.batch_size, donors
+                    policy,
+                    preprocessor,
+                    postprocessor,
+                    dataset,
+                    indices,
+                    args.batch_size,
+                    donors,
+                    instruction,
                 )
                 print(
                     f"{name:<10} {images:<8} {len(episodes):>8} {len(indices):>7} "
