@@ -35,7 +35,6 @@ from __future__ import annotations
 import contextlib
 import logging
 from collections import deque
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -58,6 +57,7 @@ from lerobot_subgoalvla.policies.subgoalvla.lerobot_compat import (
 from lerobot_subgoalvla.policies.subgoalvla.model import SubgoalVLAModel
 from lerobot_subgoalvla.policies.subgoalvla.state_history import StateHistoryBuffer
 from lerobot_subgoalvla.policies.subgoalvla.tokenizer import vocabulary_words
+from lerobot_subgoalvla.policies.subgoalvla.training_steps import log_loaded_step, seeded_rng
 
 logger = logging.getLogger(__name__)
 
@@ -66,15 +66,6 @@ def _require_online(action: str, alternative: str) -> None:
     """Raise one clear line when ``action`` needs the Hugging Face Hub but offline mode is on."""
     if is_offline_mode():
         raise OSError(f"{action} needs the Hugging Face Hub but HF_HUB_OFFLINE=1 is set; {alternative}")
-
-
-@contextlib.contextmanager
-def _seeded_rng(seed: int, device: torch.device) -> Iterator[None]:
-    """Fork torch's RNG (CPU, and ``device``'s if it is a GPU), seed it, restore it on exit."""
-    gpus = [device.index or 0] if device.type == "cuda" else []
-    with torch.random.fork_rng(devices=gpus, device_type="cuda"):
-        torch.manual_seed(seed)
-        yield
 
 
 class SubgoalVLAPolicy(PreTrainedPolicy):
@@ -145,28 +136,6 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
                 "SubgoalVLA: switching to %s after %d optimizer steps", self.stage, int(self.optimizer_steps)
             )
 
-    def _log_start_step(self) -> None:
-        """Say once where a loaded policy's stage count stands: it is saved with the weights, so a finished
-        policy given to a new run with ``--policy.path`` would otherwise train stage II only, silently."""
-        if self._start_step_logged:
-            return
-        self._start_step_logged = True
-        step, switch = int(self.optimizer_steps), self.config.stage2_start_step
-        if step == 0:
-            return
-        if self.stage == "stage2" and self.config.stage == "stage1":
-            logger.warning(
-                "SubgoalVLA: training starts at the loaded policy's optimizer step %d, past "
-                "--policy.stage2_start_step=%d, so this run trains stage II only. Right for --resume; to "
-                "train a finished policy from stage I again, set --policy.stage2_start_step beyond %d "
-                "(docs/policy.md, 'Training a finished policy further')",
-                step,
-                switch,
-                step,
-            )
-        else:
-            logger.info("SubgoalVLA: training continues from the loaded policy's optimizer step %d", step)
-
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
         """Training loss of the current stage (eq. 1 = planner eq. 3 + generator eq. 4).
 
@@ -185,7 +154,11 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
             )
         if self.training:
             require_autocast(self.config.dtype, self.optimizer_steps.device.type)
-            self._log_start_step()
+            if not self._start_step_logged:  # once per run
+                self._start_step_logged = True
+                log_loaded_step(
+                    int(self.optimizer_steps), self.stage, self.config.stage, self.config.stage2_start_step
+                )
         stage = self.stage
         with self._step_rng():
             losses = self.model.compute_losses(batch, stage)
@@ -220,7 +193,7 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         device = self.optimizer_steps.device  # the policy's device: the batch is moved there first
         rank = torch.distributed.get_rank() if torch.distributed.is_initialized() else 0
         seed = (int(self.training_seed) * 1_000_003 + int(self.optimizer_steps)) * 1009 + rank
-        return _seeded_rng(seed % 2**63, device)
+        return seeded_rng(seed % 2**63, device)
 
     def get_optim_params(self) -> list[dict[str, Any]]:
         """Parameter groups with the paper's learning rates (table 8); frozen parameters are left out.
