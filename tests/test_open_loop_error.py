@@ -108,6 +108,37 @@ def test_another_instruction_moves_a_policy_that_reads_it(open_loop_error):
     assert items[0][TASK_KEY] == "a"
 
 
+class CountingDataset:
+    """Items of a constant image, counting how often each index is decoded."""
+
+    def __init__(self) -> None:
+        self.decoded: list[int] = []
+
+    def __getitem__(self, index: int) -> dict:
+        self.decoded.append(index)
+        return {
+            ACTION_KEY: torch.zeros(2, 2),
+            ACTION_IS_PAD_KEY: torch.zeros(2, dtype=torch.bool),
+            "observation.image": torch.full((3, 4, 4), float(index)),
+        }
+
+
+def test_every_variant_of_a_group_decodes_each_frame_once(open_loop_error):
+    dataset = CountingDataset()
+    frames = open_loop_error.DecodedFrames(dataset)
+
+    def identity(x):
+        return x
+
+    policy = ImageReadingPolicy()
+    own, _ = open_loop_error.executed_errors(policy, identity, identity, frames, [0, 1], 2)
+    other, _ = open_loop_error.executed_errors(
+        policy, identity, identity, frames, [0, 1], 2, image_donors=[1, 0]
+    )
+    assert own == pytest.approx([0.0, 1.0]) and other == pytest.approx([1.0, 0.0])
+    assert sorted(dataset.decoded) == [0, 1]
+
+
 def test_the_other_episode_gives_the_same_step_or_its_last_frame(open_loop_error):
     spans = [
         {"dataset_from_index": 0, "dataset_to_index": 10},
