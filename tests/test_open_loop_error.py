@@ -153,7 +153,14 @@ def test_a_malformed_group_ends_in_one_line(open_loop_error, caplog):
     with pytest.raises(SystemExit) as stop:
         open_loop_error.main(["--policy-path", "x", "--dataset-root", "y", "--group", "trained=5-2"])
     assert stop.value.code == 1
-    assert "--group 'trained=5-2': write NAME=FIRST-LAST" in caplog.text
+    assert "--group 'trained=5-2': write NAME=FIRST-LAST or NAME=A-B,C,..." in caplog.text
+
+
+def test_a_group_may_list_scattered_episodes(open_loop_error):
+    assert open_loop_error.parse_group("lift=3-5,9,12-13") == ("lift", [3, 4, 5, 9, 12, 13])
+    assert open_loop_error.parse_group("one=7") == ("one", [7])
+    with pytest.raises(ValueError, match="NAME=A-B,C"):
+        open_loop_error.parse_group("bad=3,,5")
 
 
 def test_a_trained_checkpoint_prints_one_row_per_group(open_loop_error, tmp_path: Path, capsys):

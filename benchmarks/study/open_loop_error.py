@@ -38,12 +38,17 @@ logger = logging.getLogger(__name__)
 
 
 def parse_group(text: str) -> tuple[str, list[int]]:
-    """``name=first-last`` (inclusive episode indices) -> (name, episodes)."""
-    name, _, span = text.partition("=")
-    first, _, last = span.partition("-")
-    if not (name and first.isdigit() and last.isdigit() and int(first) <= int(last)):
-        raise ValueError(f"--group {text!r}: write NAME=FIRST-LAST, e.g. trained=30-59")
-    return name, list(range(int(first), int(last) + 1))
+    """``name=first-last`` (inclusive episode indices), or a comma-separated list of such spans and single
+    episodes (``name=3-5,9,12-14``: a task's episodes scattered through play data) -> (name, episodes)."""
+    name, _, spans = text.partition("=")
+    episodes: list[int] = []
+    for span in spans.split(","):
+        first, dash, last = span.partition("-")
+        last = last if dash else first
+        if not (name and first.isdigit() and last.isdigit() and int(first) <= int(last)):
+            raise ValueError(f"--group {text!r}: write NAME=FIRST-LAST or NAME=A-B,C,..., e.g. trained=30-59")
+        episodes.extend(range(int(first), int(last) + 1))
+    return name, episodes
 
 
 def frame_indices(dataset, episodes: list[int], every: int) -> list[int]:
@@ -141,7 +146,9 @@ def _parse_args(argv: list[str] | None):
     parser.add_argument("--policy-path", required=True, help="a SubgoalVLA pretrained_model folder")
     parser.add_argument("--dataset-root", required=True, help="a LeRobotDataset with the policy's inputs")
     parser.add_argument("--repo-id", default="local/metaworld", help="the dataset's repo id")
-    parser.add_argument("--group", action="append", required=True, help="NAME=FIRST-LAST episodes (repeat)")
+    parser.add_argument(
+        "--group", action="append", required=True, help="NAME=FIRST-LAST episodes, or NAME=A-B,C,... (repeat)"
+    )
     parser.add_argument("--every", type=int, default=5, help="predict from every this-many-th frame")
     parser.add_argument("--batch-size", type=int, default=16, help="frames per forward pass")
     parser.add_argument("--seed", type=int, default=0, help="seeds the diffusion heads' noise")
@@ -170,8 +177,8 @@ def main(argv: list[str] | None = None) -> int:
         meta = LeRobotDatasetMetadata(args.repo_id, root=args.dataset_root)
         last = meta.total_episodes - 1
         for name, episodes in groups:
-            if episodes[-1] > last:
-                raise ValueError(f"--group {name}: episode {episodes[-1]} is past the last one ({last})")
+            if max(episodes) > last:
+                raise ValueError(f"--group {name}: episode {max(episodes)} is past the last one ({last})")
         dataset = LeRobotDataset(
             args.repo_id,
             root=args.dataset_root,
