@@ -41,9 +41,12 @@ def test_the_error_is_of_the_executed_steps_and_skips_padding(open_loop_error):
     def identity(x):
         return x
 
-    chunk, first = open_loop_error.executed_errors(OffsetPolicy(), identity, identity, items, [0, 1], 4)
+    chunk, first, per_dimension = open_loop_error.executed_errors(
+        OffsetPolicy(), identity, identity, items, [0, 1], 4
+    )
     assert chunk == pytest.approx([0.3, 0.3])
     assert first == pytest.approx([0.3, 0.3])
+    assert open_loop_error.dimension_line(per_dimension, ["x", "grip"]) == "x 0.300 grip 0.000"
 
 
 class ImageReadingPolicy:
@@ -70,8 +73,8 @@ def test_images_from_another_episode_move_a_policy_that_reads_them(open_loop_err
     def identity(x):
         return x
 
-    own, _ = open_loop_error.executed_errors(ImageReadingPolicy(), identity, identity, items, [0, 1], 2)
-    other, _ = open_loop_error.executed_errors(
+    own, *_ = open_loop_error.executed_errors(ImageReadingPolicy(), identity, identity, items, [0, 1], 2)
+    other, *_ = open_loop_error.executed_errors(
         ImageReadingPolicy(), identity, identity, items, [0, 1], 2, image_donors=[1, 0]
     )
     assert own == pytest.approx([0.0, 0.5])
@@ -100,8 +103,8 @@ def test_another_instruction_moves_a_policy_that_reads_it(open_loop_error):
         return x
 
     policy = InstructionReadingPolicy()
-    own, _ = open_loop_error.executed_errors(policy, identity, identity, items, [0, 1], 2)
-    swapped, _ = open_loop_error.executed_errors(
+    own, *_ = open_loop_error.executed_errors(policy, identity, identity, items, [0, 1], 2)
+    swapped, *_ = open_loop_error.executed_errors(
         policy, identity, identity, items, [0, 1], 2, instruction="b"
     )
     assert own == pytest.approx([0.0, 0.0]) and swapped == pytest.approx([0.4, 0.4])
@@ -131,8 +134,8 @@ def test_every_variant_of_a_group_decodes_each_frame_once(open_loop_error):
         return x
 
     policy = ImageReadingPolicy()
-    own, _ = open_loop_error.executed_errors(policy, identity, identity, frames, [0, 1], 2)
-    other, _ = open_loop_error.executed_errors(
+    own, *_ = open_loop_error.executed_errors(policy, identity, identity, frames, [0, 1], 2)
+    other, *_ = open_loop_error.executed_errors(
         policy, identity, identity, frames, [0, 1], 2, image_donors=[1, 0]
     )
     assert own == pytest.approx([0.0, 1.0]) and other == pytest.approx([1.0, 0.0])
@@ -181,6 +184,10 @@ def test_a_trained_checkpoint_prints_one_row_per_group(open_loop_error, tmp_path
     out = capsys.readouterr().out
     rows = [line.split() for line in out[out.index("group ") :].splitlines()[1:]]
     assert [tuple(row[:2]) for row in rows] == [("both", "own"), ("both", "instr")]
+    assert open_loop_error.main([*argv, "--group", "both=0-1", "--per-dimension"]) == 0
+    out = capsys.readouterr().out
+    lines = out[out.index("group ") :].splitlines()[1:]
+    assert lines[1].split()[:2] == ["per", "dimension:"] and len(lines[1].split()) == 2 + 2 * 2
 
     with pytest.raises(SystemExit):  # a group past the dataset's last episode
         open_loop_error.main([*argv, "--group", "late=1-2"])

@@ -17,7 +17,7 @@ another episode of the group (the objects elsewhere, everything else the frame's
 where the objects are moves away from the expert, one that ignores them does not. With ``--instruction TEXT``
 a row per group feeds every frame that instruction instead of its own (another task's, say): a policy that
 tells tasks apart by their instruction moves away from the expert, one that infers the task from the scene
-does not.
+does not. ``--per-dimension`` adds under each row the mean absolute error of every action dimension.
 
 Dimension legend: ``B`` frames in a batch, ``N`` executed steps of a chunk, ``A`` action dim.
 """
@@ -114,7 +114,8 @@ def executed_errors(
     image_donors: list[int] | None = None,
     instruction: str | None = None,
 ):
-    """Per frame: (mean over the executed steps of |predicted - recorded action|, the first step's).
+    """Per frame: (mean over the executed steps of |predicted - recorded action|, the first step's, and the
+    mean over the executed steps of each action dimension's absolute error, an (A,) tensor).
 
     ``image_donors`` (one dataset index per frame) replaces each frame's camera images by the donor's, the
     rest of the input (state, history, instruction) kept: how far the error moves says how much the policy
@@ -123,7 +124,7 @@ def executed_errors(
     n_exec = policy.config.n_action_steps
     camera_keys = list(policy.config.image_features)
     donors = image_donors or [None] * len(indices)
-    chunk_errors, first_errors = [], []
+    chunk_errors, first_errors, dimension_errors = [], [], []
     for start in range(0, len(indices), batch_size):
         span = slice(start, start + batch_size)
         items = [
@@ -138,7 +139,17 @@ def executed_errors(
         distance = (predicted - recorded).norm(dim=-1)  # (B, N)
         chunk_errors += ((distance * valid).sum(1) / valid.sum(1)).tolist()
         first_errors += distance[:, 0].tolist()
-    return chunk_errors, first_errors
+        absolute = (predicted - recorded).abs() * valid.unsqueeze(-1)  # (B, N, A)
+        dimension_errors += list(absolute.sum(1) / valid.sum(1, keepdim=True))
+    return chunk_errors, first_errors, dimension_errors
+
+
+def dimension_line(per_frame: list[torch.Tensor], names: list[str] | None) -> str:
+    """``name mean`` for each action dimension: the mean over frames of its absolute error (a binary gripper
+    command shows its wrong-sign steps here, which a median would hide)."""
+    means = torch.stack(per_frame).mean(0).tolist()
+    labels = names if isinstance(names, list) and len(names) == len(means) else range(len(means))
+    return " ".join(f"{label} {value:.3f}" for label, value in zip(labels, means, strict=True))
 
 
 def _parse_args(argv: list[str] | None):
@@ -161,6 +172,11 @@ def _parse_args(argv: list[str] | None):
         "--instruction", default=None,
         help="also predict with this instruction in place of every frame's own (e.g. another task's): "
         "does the policy read which task it is given?",
+    )  # fmt: skip
+    parser.add_argument(
+        "--per-dimension", action="store_true",
+        help="under each row, the mean absolute error of every action dimension (named as in the dataset): "
+        "which part of the motion (a translation, a rotation, the gripper) carries the error",
     )  # fmt: skip
     return parser.parse_args(argv)
 
@@ -185,6 +201,7 @@ def main(argv: list[str] | None = None) -> int:
             delta_timestamps=resolve_delta_timestamps(policy.config, meta),
             video_backend="pyav",
         )
+        names = meta.features[ACTION_KEY].get("names")
         torch.manual_seed(args.seed)
         header = ("group", "input", "episodes", "frames", "median", "mean", "first med")
         print("{:<10} {:<8} {:>8} {:>7} {:>8} {:>8} {:>10}".format(*header))
@@ -197,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.instruction is not None:
                 variants["instr"] = (None, args.instruction)
             for images, (donors, instruction) in variants.items():
-                chunk, first = executed_errors(
+                chunk, first, per_dimension = executed_errors(
                     policy,
                     preprocessor,
                     postprocessor,
@@ -212,6 +229,8 @@ def main(argv: list[str] | None = None) -> int:
                     f"{statistics.median(chunk):>8.3f} {statistics.fmean(chunk):>8.3f} "
                     f"{statistics.median(first):>10.3f}"
                 )
+                if args.per_dimension:
+                    print("    per dimension: " + dimension_line(per_dimension, names))
     return 0
 
 
