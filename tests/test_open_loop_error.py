@@ -66,6 +66,7 @@ def test_images_from_another_episode_move_a_policy_that_reads_them(open_loop_err
             ACTION_KEY: torch.zeros(2, 2),
             ACTION_IS_PAD_KEY: torch.zeros(2, dtype=torch.bool),
             "observation.image": torch.full((3, 4, 4), value),
+            "observation.wrist": torch.full((3, 2, 2), value),  # a camera the policy does not read
         }
         for value in (0.0, 0.5)
     ]
@@ -79,6 +80,10 @@ def test_images_from_another_episode_move_a_policy_that_reads_them(open_loop_err
     )
     assert own == pytest.approx([0.0, 0.5])
     assert other == pytest.approx([0.5, 0.0])
+    only_another_camera, *_ = open_loop_error.executed_errors(
+        ImageReadingPolicy(), identity, identity, items, [0, 1], 2, [1, 0], None, ["observation.wrist"]
+    )
+    assert only_another_camera == pytest.approx([0.0, 0.5])  # the policy's camera kept its own image
     assert items[0]["observation.image"].max() == 0.0  # the dataset's own items are left as they were
 
 
@@ -188,6 +193,10 @@ def test_a_trained_checkpoint_prints_one_row_per_group(open_loop_error, tmp_path
     out = capsys.readouterr().out
     lines = out[out.index("group ") :].splitlines()[1:]
     assert lines[1].split()[:2] == ["per", "dimension:"] and len(lines[1].split()) == 2 + 2 * 2
+    with pytest.raises(SystemExit):  # a camera the policy does not have
+        open_loop_error.main(
+            [*argv, "--group", "both=0-1", "--images-from-other-episode", "--swap-camera", "x"]
+        )
 
     with pytest.raises(SystemExit):  # a group past the dataset's last episode
         open_loop_error.main([*argv, "--group", "late=1-2"])

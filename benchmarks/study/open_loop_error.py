@@ -17,7 +17,8 @@ another episode of the group (the objects elsewhere, everything else the frame's
 where the objects are moves away from the expert, one that ignores them does not. With ``--instruction TEXT``
 a row per group feeds every frame that instruction instead of its own (another task's, say): a policy that
 tells tasks apart by their instruction moves away from the expert, one that infers the task from the scene
-does not. ``--per-dimension`` adds under each row the mean absolute error of every action dimension.
+does not. ``--swap-camera KEY`` limits the image swap to one camera (which camera is read).
+``--per-dimension`` adds under each row the mean absolute error of every action dimension.
 
 Dimension legend: ``B`` frames in a batch, ``N`` executed steps of a chunk, ``A`` action dim.
 """
@@ -113,16 +114,18 @@ def executed_errors(
     batch_size: int,
     image_donors: list[int] | None = None,
     instruction: str | None = None,
+    swapped_cameras: list[str] | None = None,
 ):
     """Per frame: (mean over the executed steps of |predicted - recorded action|, the first step's, and the
     mean over the executed steps of each action dimension's absolute error, an (A,) tensor).
 
     ``image_donors`` (one dataset index per frame) replaces each frame's camera images by the donor's, the
     rest of the input (state, history, instruction) kept: how far the error moves says how much the policy
-    reads the image. ``instruction`` replaces every frame's instruction the same way.
+    reads the image; ``swapped_cameras`` limits the swap to those cameras (default: all). ``instruction``
+    replaces every frame's instruction the same way.
     """
     n_exec = policy.config.n_action_steps
-    camera_keys = list(policy.config.image_features)
+    camera_keys = list(policy.config.image_features) if swapped_cameras is None else swapped_cameras
     donors = image_donors or [None] * len(indices)
     chunk_errors, first_errors, dimension_errors = [], [], []
     for start in range(0, len(indices), batch_size):
@@ -174,6 +177,11 @@ def _parse_args(argv: list[str] | None):
         "does the policy read which task it is given?",
     )  # fmt: skip
     parser.add_argument(
+        "--swap-camera", action="append", default=None, metavar="KEY",
+        help="with --images-from-other-episode, take only this camera from the other episode (repeat; "
+        "default: every camera): which camera the policy reads an object from",
+    )  # fmt: skip
+    parser.add_argument(
         "--per-dimension", action="store_true",
         help="under each row, the mean absolute error of every action dimension (named as in the dataset): "
         "which part of the motion (a translation, a rotation, the gripper) carries the error",
@@ -190,6 +198,12 @@ def main(argv: list[str] | None = None) -> int:
 
         policy, preprocessor, postprocessor = load_policy(args.policy_path)
         policy.eval()
+        unknown = sorted(set(args.swap_camera or ()) - set(policy.config.image_features))
+        if unknown:
+            raise ValueError(
+                f"--swap-camera {unknown[0]}: not a camera of the policy; use one of "
+                f"{sorted(policy.config.image_features)}"
+            )
         meta = LeRobotDatasetMetadata(args.repo_id, root=args.dataset_root)
         last = meta.total_episodes - 1
         for name, episodes in groups:
@@ -223,6 +237,7 @@ def main(argv: list[str] | None = None) -> int:
                     args.batch_size,
                     donors,
                     instruction,
+                    args.swap_camera,
                 )
                 print(
                     f"{name:<10} {images:<8} {len(episodes):>8} {len(indices):>7} "
