@@ -193,6 +193,8 @@ def test_a_trained_checkpoint_prints_one_row_per_group(open_loop_error, tmp_path
     out = capsys.readouterr().out
     lines = out[out.index("group ") :].splitlines()[1:]
     assert lines[1].split()[:2] == ["per", "dimension:"] and len(lines[1].split()) == 2 + 2 * 2
+    with pytest.raises(SystemExit):  # a camera swap without the swap
+        open_loop_error.main([*argv, "--group", "both=0-1", "--swap-camera=observation.image"])
     with pytest.raises(SystemExit):  # a camera the policy does not have
         open_loop_error.main(
             [*argv, "--group", "both=0-1", "--images-from-other-episode", "--swap-camera", "x"]

@@ -198,6 +198,8 @@ def main(argv: list[str] | None = None) -> int:
 
         policy, preprocessor, postprocessor = load_policy(args.policy_path)
         policy.eval()
+        if args.swap_camera and not args.images_from_other_episode:
+            raise ValueError("--swap-camera picks cameras of --images-from-other-episode; add that flag")
         unknown = sorted(set(args.swap_camera or ()) - set(policy.config.image_features))
         if unknown:
             raise ValueError(
@@ -221,12 +223,12 @@ def main(argv: list[str] | None = None) -> int:
         print("{:<10} {:<8} {:>8} {:>7} {:>8} {:>8} {:>10}".format(*header))
         for name, episodes in groups:
             indices = frame_indices(dataset, episodes, args.every)
-            frames = DecodedFrames(dataset)
             variants = {"own": (None, None)}  # row label: (image donors, instruction)
             if args.images_from_other_episode:
                 variants["other"] = (other_episode_indices(dataset, episodes, args.every), None)
             if args.instruction is not None:
                 variants["instr"] = (None, args.instruction)
+            frames = DecodedFrames(dataset) if len(variants) > 1 else dataset  # one row reads each frame once
             for images, (donors, instruction) in variants.items():
                 chunk, first, per_dimension = executed_errors(
                     policy,

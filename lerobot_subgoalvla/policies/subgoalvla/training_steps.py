@@ -12,7 +12,7 @@ from collections.abc import Iterator
 
 import torch
 
-logger = logging.getLogger("lerobot_subgoalvla.policies.subgoalvla.modeling_subgoalvla")
+logger = logging.getLogger(__name__)
 
 
 @contextlib.contextmanager
