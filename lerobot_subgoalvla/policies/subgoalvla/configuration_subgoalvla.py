@@ -118,6 +118,10 @@ class SubgoalVLAConfig(PreTrainedConfig, DatasetFitting):
     # False is the "w/o SP" ablation: no planner, the generator conditions on the state history and the
     # vision-language features only.
     use_planner: bool = True
+    # weight of an auxiliary stage-I loss (not in the paper): regress the dataset's
+    # `observation.environment_state` (object poses) from the vision-language features, so that the vision
+    # tower learns to see what the actions depend on (environment_head.py); 0 switches it off. Training only.
+    environment_state_weight: float = 0.0
 
     # training stage at step 0: `stage1` (generator conditioned on ground-truth traces, everything trained) or
     # `stage2` (generator conditioned on traces sampled from the planner, backbone frozen). Start a stage II
@@ -236,6 +240,11 @@ class SubgoalVLAConfig(PreTrainedConfig, DatasetFitting):
             raise ConfigError(
                 f"--policy.n_action_steps={self.n_action_steps} must be <= "
                 f"--policy.chunk_size={self.chunk_size}"
+            )
+        if self.environment_state_weight < 0:
+            raise ConfigError(
+                f"--policy.environment_state_weight must be >= 0 (0 switches the loss off), got "
+                f"{self.environment_state_weight}"
             )
         if self.stage2_start_step is not None and self.stage2_start_step < 0:
             raise ConfigError(f"--policy.stage2_start_step must be >= 0, got {self.stage2_start_step}")

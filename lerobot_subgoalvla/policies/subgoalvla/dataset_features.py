@@ -26,6 +26,7 @@ from lerobot.configs import FeatureType
 from lerobot_subgoalvla.config_error import DatasetContractError
 from lerobot_subgoalvla.contract.keys import (
     ACTION_KEY,
+    ENV_STATE_KEY,
     STATE_HISTORY_KEY,
     STATE_KEY,
     SUBGOAL_TRACE_KEY,
@@ -80,6 +81,12 @@ class DatasetFitting:
             raise DatasetContractError(
                 f"--policy.camera_keys names {unknown}, which are not cameras of the dataset/env; "
                 f"its cameras are {visual}"
+            )
+        if self.environment_state_weight > 0 and ENV_STATE_KEY not in inputs:
+            raise DatasetContractError(
+                f"--policy.environment_state_weight={self.environment_state_weight} regresses "
+                f"{ENV_STATE_KEY!r}, which the dataset does not have (its features: {sorted(inputs)}); "
+                "set --policy.environment_state_weight=0"
             )
         state_dim = inputs[STATE_KEY].shape[-1]
         if self.state_angle_dims is not None:

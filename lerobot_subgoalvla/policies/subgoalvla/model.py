@@ -13,7 +13,9 @@ The backbone runs once per chunk (``encode``); both heads read the same H[k]. Tw
 on a trace the planner samples without gradient, and the backbone runs under ``no_grad`` (frozen) while both
 heads keep training. Ablations are configuration: ``feature_aggregation`` (table 4) swaps the aggregator,
 ``use_planner=False`` ("w/o SP", table 3) drops the planner so the generator queries come from S_t alone,
-``subgoal_trace_len=1`` ("w/o ST") keeps only the first trace step.
+``subgoal_trace_len=1`` ("w/o ST") keeps only the first trace step. ``environment_state_weight > 0`` adds an
+auxiliary stage-I loss (not in the paper, ``environment_head.py``) that reads the dataset's environment state
+back from H[k].
 
 The batch is already normalised by the processor (state, history and trace share the state statistics; actions
 use their own). Cameras (any number, in the config's order) arrive in [0, 1] and are laid side by side,
@@ -37,6 +39,7 @@ from torch import Tensor, nn
 from lerobot_subgoalvla.contract.keys import (
     ACTION_IS_PAD_KEY,
     ACTION_KEY,
+    ENV_STATE_KEY,
     STATE_HISTORY_KEY,
     STATE_KEY,
     SUBGOAL_TRACE_KEY,
@@ -49,6 +52,7 @@ from lerobot_subgoalvla.policies.subgoalvla.configuration_subgoalvla import (
 )
 from lerobot_subgoalvla.policies.subgoalvla.diffusion import DiffusionObjective
 from lerobot_subgoalvla.policies.subgoalvla.dit import DiT
+from lerobot_subgoalvla.policies.subgoalvla.environment_head import EnvironmentStateHead
 from lerobot_subgoalvla.policies.subgoalvla.proprio_attention import build_aggregator
 
 
@@ -130,6 +134,11 @@ class SubgoalVLAModel(nn.Module):
         generator_queries = h + m if config.use_planner else h
         self.generator_aggregator = self._aggregator(config.generator_attention, generator_queries, width)
         self.generator = _dit(config.generator, self.action_dim, width)
+        self.environment_head: EnvironmentStateHead | None = None
+        if config.environment_state_weight > 0:
+            environment_dim = config.input_features[ENV_STATE_KEY].shape[-1]
+            heads = config.generator_attention.num_heads
+            self.environment_head = EnvironmentStateHead(width, heads, environment_dim)
         if config.gradient_checkpointing:
             self.enable_gradient_checkpointing()
         norms = config.normalization_mapping
@@ -160,9 +169,15 @@ class SubgoalVLAModel(nn.Module):
         )
 
     def head_parameters(self) -> list[nn.Parameter]:
-        """Aggregators and DiT heads (learning rate 1e-4, table 8); the backbone groups live on
-        ``backbone``."""
-        heads = [self.planner_aggregator, self.planner, self.generator_aggregator, self.generator]
+        """Aggregators, DiT heads and the auxiliary environment head (learning rate 1e-4, table 8); the
+        backbone groups live on ``backbone``."""
+        heads = [
+            self.planner_aggregator,
+            self.planner,
+            self.generator_aggregator,
+            self.generator,
+            self.environment_head,
+        ]
         return [p for module in heads if module is not None for p in module.parameters()]
 
     # --------------------------------------------------------------------------------------------------------
@@ -198,8 +213,9 @@ class SubgoalVLAModel(nn.Module):
             generator: RNG for timesteps, noise, label dropout and the stage-II trace sample.
 
         Returns:
-            ``planner_loss``, ``generator_loss`` and ``loss`` (their sum); planner_loss is 0 without a
-            planner.
+            ``planner_loss``, ``generator_loss``, with the auxiliary head ``environment_state_loss``
+            (weighted; 0 in stage II, where the backbone it trains is frozen), and ``loss`` (their sum);
+            planner_loss is 0 without a planner.
         """
         if stage not in ("stage1", "stage2"):
             raise ValueError(f"stage must be 'stage1' or 'stage2', got {stage!r}")
@@ -223,11 +239,15 @@ class SubgoalVLAModel(nn.Module):
         generator_loss = self.generator_objective.compute_loss(
             self.generator, batch[ACTION_KEY], features, features_mask, valid, generator
         )
-        return {
-            "planner_loss": planner_loss,
-            "generator_loss": generator_loss,
-            "loss": planner_loss + generator_loss,
-        }
+        losses = {"planner_loss": planner_loss, "generator_loss": generator_loss}
+        if self.environment_head is not None:
+            losses["environment_state_loss"] = (
+                self.config.environment_state_weight
+                * self.environment_head.loss(hidden, mask, batch[ENV_STATE_KEY])
+                if stage == "stage1"
+                else hidden.new_zeros(())
+            )
+        return {**losses, "loss": sum(losses.values())}
 
     def _planner_loss(
         self,

@@ -76,7 +76,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
         dataset_meta: the training dataset's metadata when LeRobot builds the policy from a dataset: its
             features are checked against the data contract (trace and history are needed for training only),
             a tiny backbone takes its vocabulary from its tasks, and a run that would end by pushing to the
-            Hub fails now when the Hub is offline.
+            Hub fails now when the Hub is offline. The auxiliary environment head (if on) takes the
+            statistics of its target from it.
         **kwargs: the rest of LeRobot's factory arguments (``dataset_stats``): normalisation is the
             processor's job, so the policy does not use them.
     """
@@ -109,6 +110,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
                 )
         self.config: SubgoalVLAConfig = config
         self.model = SubgoalVLAModel(config)
+        if self.model.environment_head is not None and dataset_meta is not None:
+            self.model.environment_head.set_statistics(dataset_meta.stats)
         # Optimizer steps done so far; saved with the weights so resume/reload keeps the training stage.
         self.register_buffer("optimizer_steps", torch.zeros((), dtype=torch.long))
         # Base seed of the training draws (noise, timesteps, label dropout, dropout), drawn from the seeded
@@ -145,7 +148,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
                 ``action`` (B, N, A) and ``action_is_pad`` (B, N).
 
         Returns:
-            The loss and numbers to log: ``planner_loss``, ``generator_loss``, ``stage`` (1 or 2).
+            The loss and numbers to log: ``planner_loss``, ``generator_loss``, ``stage`` (1 or 2), and
+            ``environment_state_loss`` where the auxiliary head is on.
         """
         missing = [key for key in TRACE_COLUMNS if key not in batch]
         if missing:
@@ -172,12 +176,8 @@ class SubgoalVLAPolicy(PreTrainedPolicy):
                 "likely cause: NaN/inf in the dataset (reconvert it: the converter refuses them) or a "
                 "learning rate too high for this preset"
             )
-        logs = {
-            "planner_loss": losses["planner_loss"].item(),
-            "generator_loss": losses["generator_loss"].item(),
-            "stage": 1 if stage == "stage1" else 2,
-        }
-        return losses["loss"], logs
+        logs = {name: value.item() for name, value in losses.items() if name != "loss"}
+        return losses["loss"], {**logs, "stage": 1 if stage == "stage1" else 2}
 
     def _step_rng(self) -> contextlib.AbstractContextManager:
         """In training, the global RNG seeded from (training_seed, step, rank) for one forward, then restored.
