@@ -206,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
         fold_of = [rank * args.folds // len(episodes) for rank in range(len(episodes))]
         frames = [(i, colour, fold) for (e, colour), fold in zip(episodes, fold_of, strict=True)
                   for i in episode_frames(dataset, e, args.every)]  # fmt: skip
-        logger.info("%d episodes, %d approach frames", len(episodes), len(frames))
+        print(f"{len(episodes)} episodes ({', '.join(args.families)}), {len(frames)} approach frames")
         features: dict[str, list[torch.Tensor]] = {}
         targets: dict[str, list[torch.Tensor]] = {}
         for start in range(0, len(frames), args.batch_size):
