@@ -180,7 +180,8 @@ def _episodes(meta, families: list[str], per_family: int) -> list[tuple[int, str
     instruction = {int(e["episode_index"]): e["tasks"][0] for e in meta.episodes}
     groups = task_groups(sorted(instruction.items()), per_family)
     chosen = sorted(e for family in families for e in groups.get(family, []))
-    return [(e, block_of(instruction[e])) for e in chosen if block_of(instruction[e]) is not None]
+    colours = {e: block_of(instruction[e]) for e in chosen}
+    return [(e, colour) for e, colour in colours.items() if colour is not None]
 
 
 def main(argv: list[str] | None = None) -> int:

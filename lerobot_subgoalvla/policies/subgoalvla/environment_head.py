@@ -59,9 +59,9 @@ class EnvironmentStateHead(nn.Module):
         mean = torch.as_tensor(stats["mean"], dtype=torch.float32).flatten()
         std = torch.as_tensor(stats["std"], dtype=torch.float32).flatten()
         if mean.shape != self.target_mean.shape or std.shape != self.target_std.shape:
-            raise ValueError(
-                f"environment-state statistics of shape {tuple(mean.shape)}, the feature has "
-                f"{tuple(self.target_mean.shape)} dims"
+            raise DatasetContractError(
+                f"the dataset's statistics of {ENV_STATE_KEY!r} have shape {tuple(mean.shape)}, the feature "
+                f"{tuple(self.target_mean.shape)}; recompute the statistics (meta/stats.json)"
             )
         self.target_mean.copy_(mean)
         self.target_std.copy_(std.clamp_min(1e-6))  # a constant dimension (a fixed door) stays finite
