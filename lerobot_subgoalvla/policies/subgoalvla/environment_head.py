@@ -64,7 +64,9 @@ class EnvironmentStateHead(nn.Module):
                 f"{tuple(self.target_mean.shape)}; recompute the statistics (meta/stats.json)"
             )
         self.target_mean.copy_(mean)
-        self.target_std.copy_(std.clamp_min(1e-6))  # a constant dimension (a fixed door) stays finite
+        # A constant dimension (Meta-World's unused object slots) keeps unit scale: its centred target is 0,
+        # and float noise around the mean is not blown up by a near-zero std.
+        self.target_std.copy_(torch.where(std > 1e-6, std, torch.ones_like(std)))
 
     def forward(self, hidden: Tensor, mask: Tensor) -> Tensor:
         """Predicted z-scored environment state (B, D) from hidden (B, S, E) and mask (B, S), True = valid."""
