@@ -7,7 +7,7 @@ grasp turns the hand to it. Datasets that record ``observation.environment_state
 doors, switches and block poses) give a direct target: this head regresses it from the layer-k states, and its
 loss trains the backbone to carry what the scene holds. The head is used in training only (stage I, where the
 backbone learns); at inference nothing reads it and the env need not provide the feature. Off by default: at
-weight 0.1 it made the CALVIN policy's chains shorter (docs/RESULTS.md), so it is an option to study, no recipe.
+weight 0.1 it made the CALVIN policy's chains shorter (docs/RESULTS.md): an option to study, in no recipe.
 
 The target is z-scored with the dataset's statistics, stored in the head (saved with the weights), so that
 every dimension weighs alike whatever its unit.
