@@ -10,11 +10,12 @@ an untrained copy of the model and on the pooled camera pixels says what the arc
 give without training, and a probe without features (``none``) is the chance row.
 
 Targets, all of the block the episode's instruction names, read from ``observation.environment_state``
-(CALVIN's scene_obs: per block x, y, z, then XYZ Euler angles) and ``observation.state`` (robot_obs: TCP yaw
-at [5], the last gripper command at [14]): ``yaw`` the block's yaw, ``yaw_grip`` its yaw relative to the TCP's
-(what the gripper camera shows and the hand must turn by), both as (cos 2a, sin 2a) because a block looks the
-same turned by half a turn, and ``xy`` its position on the table. Only frames before the episode's first
-closing command enter (the approach, where the yaw decides the grasp).
+(CALVIN's scene_obs, named by ``calvin_vocab.SCENE_OBS_NAMES``: per block x, y, z, then XYZ Euler angles) and
+``observation.state`` (robot_obs, ``calvin_vocab.ROBOT_OBS_NAMES``: the TCP's yaw, the last gripper command):
+``yaw`` the block's yaw, ``yaw_grip`` its yaw relative to the TCP's (what the gripper camera shows and the
+hand must turn by), both as (cos 2a, sin 2a) because a block looks the same turned by half a turn, and ``xy``
+its position on the table. Only frames before the episode's first closing command enter (the approach, where
+the yaw decides the grasp).
 
     python benchmarks/study/calvin_block_probe.py --policy-path RUN/pretrained_model \\
         --dataset-root outputs/all34x2/dataset --families lift rotate --every 3
@@ -37,18 +38,20 @@ from pathlib import Path
 import torch
 from calvin_task_groups import FAMILIES, task_groups
 
-from lerobot_subgoalvla.calvin_vocab import TRAINING_ANNOTATIONS
+from lerobot_subgoalvla.calvin_vocab import (
+    BLOCK_COLORS,
+    ROBOT_OBS_NAMES,
+    SCENE_OBS_NAMES,
+    TRAINING_ANNOTATIONS,
+)
 from lerobot_subgoalvla.cli_errors import OneLineArgumentParser, user_errors
 from lerobot_subgoalvla.contract.keys import ENV_STATE_KEY, STATE_KEY
 from lerobot_subgoalvla.visualization.checkpoint import load_policy
 
 logger = logging.getLogger(__name__)
 
-#: Block colours in CALVIN's scene_obs slot order; each slot is x, y, z, then XYZ Euler angles.
-BLOCK_COLOURS = ("red", "blue", "pink")
-SCENE_BLOCK_START, SCENE_BLOCK_WIDTH, SCENE_YAW_OFFSET = 6, 6, 5
 #: robot_obs indices: the TCP's yaw and the last gripper command (1 open, -1 close).
-TCP_YAW, GRIPPER_COMMAND = 5, 14
+TCP_YAW, GRIPPER_COMMAND = ROBOT_OBS_NAMES.index("tcp_euler_z"), ROBOT_OBS_NAMES.index("gripper_action")
 #: Ridge strengths, as multiples of the mean squared feature norm (scale-free across sources).
 RIDGE_GRID = (1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0)
 #: Side of the pooled image per camera for the ``pixels`` source.
@@ -61,7 +64,7 @@ def block_of(instruction: str) -> str | None:
         colour
         for task, instructions in TRAINING_ANNOTATIONS.items()
         if instruction in instructions
-        for colour in BLOCK_COLOURS
+        for colour in BLOCK_COLORS
         if f"_{colour}_" in f"_{task}_"
     }
     return colours.pop() if len(colours) == 1 else None
@@ -75,13 +78,14 @@ def approach_frames(states: torch.Tensor) -> int:
 
 def block_targets(environment: torch.Tensor, states: torch.Tensor, colour: str) -> dict[str, torch.Tensor]:
     """(F, 24) scene_obs and (F, 15) robot_obs -> target name -> (F, T) for the ``colour`` block."""
-    start = SCENE_BLOCK_START + SCENE_BLOCK_WIDTH * BLOCK_COLOURS.index(colour)
-    yaw = environment[:, start + SCENE_YAW_OFFSET].double()
+    slot = f"block_slot{BLOCK_COLORS.index(colour)}"  # the converter stores the blocks in this order
+    x, yaw_index = SCENE_OBS_NAMES.index(f"{slot}_x"), SCENE_OBS_NAMES.index(f"{slot}_euler_z")
+    yaw = environment[:, yaw_index].double()
     relative = yaw - states[:, TCP_YAW].double()
     return {
         "yaw": torch.stack([torch.cos(2 * yaw), torch.sin(2 * yaw)], dim=1),
         "yaw_grip": torch.stack([torch.cos(2 * relative), torch.sin(2 * relative)], dim=1),
-        "xy": environment[:, start : start + 2].double(),
+        "xy": environment[:, x : x + 2].double(),
     }
 
 
@@ -188,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     with user_errors(logger):
         args = _parse_args(argv)
-        from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata, resolve_delta_timestamps
+        from lerobot.datasets import LeRobotDataset, LeRobotDatasetMetadata
 
         policy, preprocessor, _ = load_policy(args.policy_path)
         torch.manual_seed(args.seed)
@@ -200,10 +204,8 @@ def main(argv: list[str] | None = None) -> int:
         episodes = _episodes(meta, args.families, args.per_family)
         if len(episodes) < args.folds:
             raise ValueError(f"--families {args.families}: {len(episodes)} episodes, fewer than --folds")
-        dataset = LeRobotDataset(
-            args.repo_id, root=args.dataset_root,
-            delta_timestamps=resolve_delta_timestamps(policy.config, meta), video_backend="pyav",
-        )  # fmt: skip
+        # One frame per item: the encoding reads the cameras and the instruction, not the action chunk.
+        dataset = LeRobotDataset(args.repo_id, root=args.dataset_root, video_backend="pyav")
         fold_of = [rank * args.folds // len(episodes) for rank in range(len(episodes))]
         frames = [(i, colour, fold) for (e, colour), fold in zip(episodes, fold_of, strict=True)
                   for i in episode_frames(dataset, e, args.every)]  # fmt: skip
